@@ -1,0 +1,207 @@
+"""What an episode is made of: the received pulses, the truth behind them and the public priors."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from deint_env.errors import DeintError
+
+
+@dataclass(frozen=True, eq=False)
+class Priors:
+    """The public priors handed to a policy at reset: never the truth.
+
+    Arrays have one entry per prior track (label 0..n_labels-1); an unknown phase is NaN.  The scalar
+    channel statistics (jitter, missing and spurious rates) are treated as known, as in the papers.
+    `spurious_rate` is in spurious pulses per source pulse.
+    """
+
+    n_labels: int
+    blind: bool = False
+    period: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    phase: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    period_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    phase_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    source_prob: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    jitter_std: float = 0.0
+    pri_jitter_std: float = 0.0
+    missing_prob: float = 0.0
+    spurious_rate: float = 0.0
+    amplitude: np.ndarray | None = None
+    amplitude_std: np.ndarray | None = None
+
+    @property
+    def spurious_label(self) -> int:
+        return self.n_labels
+
+    @property
+    def phase_known(self) -> np.ndarray:
+        return np.isfinite(self.phase)
+
+    def as_info(self) -> dict[str, Any]:
+        """A fresh dict of fresh arrays (Gymnasium's checker forbids sharing data between calls)."""
+        out: dict[str, Any] = {"n_labels": self.n_labels, "blind": self.blind}
+        for name in ("period", "phase", "period_std", "phase_std", "source_prob"):
+            out[name] = np.array(getattr(self, name), dtype=np.float64)
+        for name in ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate"):
+            out[name] = float(getattr(self, name))
+        if self.amplitude is not None:
+            out["amplitude"] = np.array(self.amplitude, dtype=np.float64)
+            out["amplitude_std"] = np.array(self.amplitude_std, dtype=np.float64)
+        return out
+
+    @classmethod
+    def from_info(cls, info: dict[str, Any]) -> Priors:
+        kw = {k: info[k] for k in ("n_labels", "blind", "jitter_std", "pri_jitter_std", "missing_prob",
+                                   "spurious_rate") if k in info}
+        for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std"):
+            if info.get(k) is not None:
+                kw[k] = np.asarray(info[k], dtype=np.float64)
+        return cls(**kw)
+
+    # ---- the priors file of DESIGN section 7 -------------------------------------------------------
+    def to_json_dict(self) -> dict[str, Any]:
+        """`{"period": [...], "phase": [...], "jitter_std": s, ...}`; unknown phases are left out."""
+        if self.blind:
+            return {"blind": True, "label_budget": self.n_labels, "jitter_std": self.jitter_std}
+        out: dict[str, Any] = {"period": self.period.tolist()}
+        if np.all(np.isfinite(self.phase)):
+            out["phase"] = self.phase.tolist()
+            out["phase_std"] = self.phase_std.tolist()
+        out.update(period_std=self.period_std.tolist(), source_prob=self.source_prob.tolist(),
+                   jitter_std=self.jitter_std, pri_jitter_std=self.pri_jitter_std,
+                   missing_prob=self.missing_prob, spurious_rate=self.spurious_rate)
+        if self.amplitude is not None:
+            out["amplitude"] = self.amplitude.tolist()
+            out["amplitude_std"] = self.amplitude_std.tolist()
+        return out
+
+    @classmethod
+    def from_json_dict(cls, d: Any, where: str = "priors") -> Priors:
+        """Parse and validate a priors file; every problem is one `DeintError` line."""
+        if not isinstance(d, dict):
+            raise DeintError(f"{where}: must be a JSON object with at least 'period'")
+        allowed = {"period", "phase", "jitter_std", "period_std", "phase_std", "source_prob", "pri_jitter_std",
+                   "missing_prob", "spurious_rate", "amplitude", "amplitude_std", "blind", "label_budget"}
+        unknown = sorted(set(d) - allowed)
+        if unknown:
+            raise DeintError(f"{where}: key {unknown[0]!r} is unknown; allowed: {', '.join(sorted(allowed))}")
+
+        def scalar(key: str, default: float, lo: float = 0.0, hi: float = math.inf) -> float:
+            v = d.get(key, default)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not (lo <= v <= hi):
+                raise DeintError(f"{where}: {key}={v!r} must be a number in [{lo}, {hi}]")
+            return float(v)
+
+        if d.get("blind"):
+            budget = d.get("label_budget")
+            if not isinstance(budget, int) or not 1 <= budget <= 256:
+                raise DeintError(f"{where}: label_budget={budget!r} must be an integer in [1, 256]")
+            return cls(n_labels=budget, blind=True, jitter_std=scalar("jitter_std", 0.0))
+
+        def vector(key: str, n: int | None, positive: bool) -> np.ndarray | None:
+            if key not in d:
+                return None
+            v = d[key]
+            ok = isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            arr = np.asarray(v, dtype=np.float64) if ok else None
+            if arr is None or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)) \
+                    or (n is not None and arr.size != n) or arr.size == 0:
+                want = f"{n} " if n is not None else ""
+                raise DeintError(f"{where}: {key} must be a list of {want}finite{' positive' if positive else ''}"
+                                 f" numbers, got {v!r}")
+            return arr
+
+        period = vector("period", None, True)
+        if period is None:
+            raise DeintError(f"{where}: 'period' (a list of the sources' periods) is required")
+        n = period.size
+        phase = vector("phase", n, False)
+        period_std = vector("period_std", n, True)
+        phase_std = vector("phase_std", n, True)
+        prob = vector("source_prob", n, True)
+        if prob is not None and abs(prob.sum() - 1) > 1e-6:
+            raise DeintError(f"{where}: source_prob must sum to 1, got {prob.sum():g}")
+        amplitude = vector("amplitude", n, True)
+        amplitude_std = vector("amplitude_std", n, True)
+        rate = 1.0 / period
+        return cls(
+            n_labels=n,
+            period=period,
+            phase=phase if phase is not None else np.full(n, np.nan),
+            period_std=period_std if period_std is not None else 0.05 * period,
+            phase_std=phase_std if phase_std is not None else (0.05 * period if phase is not None
+                                                               else np.full(n, np.nan)),
+            source_prob=prob if prob is not None else rate / rate.sum(),
+            jitter_std=scalar("jitter_std", 0.0),
+            pri_jitter_std=scalar("pri_jitter_std", 0.0),
+            missing_prob=scalar("missing_prob", 0.0, hi=0.9),
+            spurious_rate=scalar("spurious_rate", 0.0, hi=10.0),
+            amplitude=amplitude,
+            amplitude_std=amplitude_std if amplitude_std is not None else (
+                None if amplitude is None else 0.1 * amplitude),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """The truth behind an episode (for scoring and for oracle policies only).
+
+    Per true source i: the period T_i drawn for this episode, the phase (first scheduled arrival), the
+    PRI in force at the end of the episode, and how many received pulses it contributed to.  The
+    schedule is every emission before TOA measurement noise, missing pulses and merging: grouped by
+    source (rows schedule_offsets[i]:schedule_offsets[i+1]), time-ordered within a source.
+    """
+
+    period: np.ndarray
+    phase: np.ndarray
+    final_period: np.ndarray
+    n_received: np.ndarray
+    schedule_toa: np.ndarray
+    schedule_pri: np.ndarray
+    schedule_offsets: np.ndarray
+
+    @property
+    def n_sources(self) -> int:
+        return int(self.period.size)
+
+    def source_schedule(self, i: int) -> np.ndarray:
+        return self.schedule_toa[self.schedule_offsets[i]:self.schedule_offsets[i + 1]]
+
+    def source_pri(self, i: int) -> np.ndarray:
+        return self.schedule_pri[self.schedule_offsets[i]:self.schedule_offsets[i + 1]]
+
+
+@dataclass(frozen=True, eq=False)
+class Episode:
+    """One simulated (or loaded) pulse train.
+
+    toa: sorted float64 times of arrival.  amplitude: float64 or None.  source: the primary source of
+    each received pulse (int32, -1 = spurious).  mask: uint64 bit mask of every source merged into the
+    pulse (0 for a spurious pulse).  truth: see `Truth` (None for files without truth).  priors: what a
+    policy is told.
+    """
+
+    scenario: str
+    seed: int
+    toa: np.ndarray
+    amplitude: np.ndarray | None
+    source: np.ndarray
+    mask: np.ndarray
+    truth: Truth | None
+    priors: Priors
+
+    def __len__(self) -> int:
+        return int(self.toa.size)
+
+    @property
+    def n_labels(self) -> int:
+        return self.priors.n_labels
+
+    @property
+    def blind(self) -> bool:
+        return self.priors.blind

@@ -1,0 +1,404 @@
+"""Scenario specifications: frozen, validated, JSON-serialisable descriptions of one kind of episode.
+
+A `ScenarioSpec` fixes everything `simulate(spec, seed)` needs; the seed fixes the rest.  Fields that
+may vary from episode to episode (a source's period, phase or amplitude) take either a number or a
+`Range` drawn once per episode.  Every field is checked at construction and a bad one raises a
+`DeintError` naming the field, the value and the allowed range.
+
+Units are the user's: the MK94 scenarios use abstract time units, the CM00 ones milliseconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Union
+
+import numpy as np
+
+from deint_env.errors import DeintError, check
+
+MAX_SOURCES = 64  # merged-pulse membership is a uint64 bit mask
+
+
+@dataclass(frozen=True)
+class Range:
+    """A value drawn once per episode: uniform on [low, high], or log-uniform when `log`."""
+
+    low: float
+    high: float
+    log: bool = False
+
+    def __post_init__(self) -> None:
+        check(math.isfinite(self.low) and math.isfinite(self.high) and self.low <= self.high,
+              "Range", (self.low, self.high), "need finite low <= high")
+        check(not self.log or self.low > 0, "Range.low", self.low, "a log-uniform range needs low > 0")
+
+    def draw(self, rng: np.random.Generator) -> float:
+        u = rng.random()
+        if self.log:
+            return float(math.exp(math.log(self.low) + u * (math.log(self.high) - math.log(self.low))))
+        return float(self.low + u * (self.high - self.low))
+
+    @property
+    def mean(self) -> float:
+        if self.log:
+            return (self.high - self.low) / math.log(self.high / self.low) if self.high > self.low else self.low
+        return 0.5 * (self.low + self.high)
+
+
+Param = Union[float, Range]
+
+
+def _param(value: Any, what: str, *, positive: bool = False, nonneg: bool = False) -> Param:
+    """Coerce a JSON value (number or {"low","high","log"}) into a float or a `Range`, validated."""
+    if isinstance(value, dict):
+        unknown = set(value) - {"low", "high", "log"}
+        check(not unknown and {"low", "high"} <= set(value), what, value,
+              'a range is {"low": a, "high": b, "log": false}')
+        value = Range(float(value["low"]), float(value["high"]), bool(value.get("log", False)))
+    if isinstance(value, Range):
+        lo = value.low
+        check(not positive or lo > 0, what, value, "must be > 0")
+        check(not nonneg or lo >= 0, what, value, "must be >= 0")
+        return value
+    check(isinstance(value, (int, float)) and not isinstance(value, bool), what, value,
+          "must be a number or a range")
+    v = float(value)
+    check(math.isfinite(v), what, value, "must be finite")
+    check(not positive or v > 0, what, value, "must be > 0")
+    check(not nonneg or v >= 0, what, value, "must be >= 0")
+    return v
+
+
+def _param_mean(p: Param) -> float:
+    return p.mean if isinstance(p, Range) else p
+
+
+def _param_low(p: Param) -> float:
+    return p.low if isinstance(p, Range) else p
+
+
+def _floats(value: Any, what: str) -> tuple[float, ...]:
+    check(isinstance(value, (list, tuple)), what, value, "must be a list of numbers")
+    out = []
+    for v in value:
+        check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v), what, value,
+              "must be a list of finite numbers")
+        out.append(float(v))
+    return tuple(out)
+
+
+MODULATIONS = ("constant", "stagger", "sliding", "sinusoidal", "drifting", "dwell_switch")
+
+
+@dataclass(frozen=True)
+class Modulation:
+    """How a source's pulse repetition interval (PRI) moves from pulse to pulse.
+
+    With n the source's own pulse index and T its period (its mean PRI):
+    - ``constant``: PRI_n = T.
+    - ``stagger``: PRI_n = T * pattern[n mod m] / mean(pattern)  (m-position stagger).
+    - ``dwell_switch``: PRI_n = T * pattern[(n // cycle) mod m] / mean(pattern)  (each PRI held `cycle` pulses).
+    - ``sliding``: PRI_n = T * (1 + depth * ((n mod cycle) / (cycle - 1) - 1/2))  (saw-tooth sweep).
+    - ``sinusoidal``: PRI_n = T * (1 + depth * sin(2 pi n / cycle + psi)), psi drawn per episode (wobulation).
+    - ``drifting``: PRI_0 = T, PRI_{n+1} = alpha * PRI_n + drift_std * v_n, v_n ~ N(0, 1): the stochastic
+      source of MK94 section II-C-2 (alpha in place of I in the (1,1) block of F, with G v_k != 0).
+    """
+
+    kind: str = "constant"
+    pattern: tuple[float, ...] = ()
+    depth: float = 0.0
+    cycle: int = 0
+    alpha: float = 1.0
+    drift_std: float = 0.0
+
+    def __post_init__(self) -> None:
+        check(self.kind in MODULATIONS, "modulation.kind", self.kind, f"one of {', '.join(MODULATIONS)}")
+        object.__setattr__(self, "pattern", _floats(self.pattern, "modulation.pattern"))
+        k = self.kind
+        if k in ("stagger", "dwell_switch"):
+            check(len(self.pattern) >= 2 and min(self.pattern) > 0, "modulation.pattern", self.pattern,
+                  f"{k} needs at least two positive PRI multipliers")
+        else:
+            check(not self.pattern, "modulation.pattern", self.pattern, f"only stagger/dwell_switch take a pattern")
+        needs_cycle = k in ("sliding", "sinusoidal", "dwell_switch")
+        check(isinstance(self.cycle, int) and not isinstance(self.cycle, bool)
+              and (self.cycle >= 2 if needs_cycle else self.cycle == 0),
+              "modulation.cycle", self.cycle, f"{k} needs " + ("an integer >= 2 (pulses)" if needs_cycle else "0"))
+        needs_depth = k in ("sliding", "sinusoidal")
+        check(math.isfinite(self.depth) and (0 < self.depth < 1 if needs_depth else self.depth == 0),
+              "modulation.depth", self.depth, f"{k} needs " + ("0 < depth < 1" if needs_depth else "0"))
+        if k == "drifting":
+            check(0.9 <= self.alpha <= 1.1, "modulation.alpha", self.alpha, "0.9 <= alpha <= 1.1")
+            check(math.isfinite(self.drift_std) and self.drift_std >= 0, "modulation.drift_std", self.drift_std,
+                  "must be >= 0")
+        else:
+            check(self.alpha == 1.0 and self.drift_std == 0.0, "modulation.alpha", (self.alpha, self.drift_std),
+                  "alpha and drift_std are for kind='drifting' only")
+
+    def min_ratio(self) -> float:
+        """A lower bound of PRI_n / T over the deterministic part of the modulation."""
+        if self.kind in ("stagger", "dwell_switch"):
+            return min(self.pattern) / (sum(self.pattern) / len(self.pattern))
+        if self.kind in ("sliding", "sinusoidal"):
+            return 1.0 - self.depth
+        if self.kind == "drifting":
+            return 0.5  # alpha < 1 shrinks the PRI; the horizon loop extends if this guess is short
+        return 1.0
+
+
+@dataclass(frozen=True)
+class SourceSpec:
+    """One periodic pulse source.
+
+    period: mean PRI T (number or Range).  phase: arrival time of the first scheduled pulse (number or
+    Range; None = uniform in [0, period)).  amplitude / amplitude_std: mean emitted amplitude and its
+    pulse-to-pulse fluctuation.  active: on-windows [start, stop) as fractions of the nominal episode
+    duration H0 = n_pulses / sum_i(1/T_i); empty = always on; a last window with stop >= 1 stays open
+    to the end of the episode (use windows for dropout and onset).
+    """
+
+    period: Param
+    phase: Param | None = None
+    modulation: Modulation = field(default_factory=Modulation)
+    amplitude: Param = 1.0
+    amplitude_std: float = 0.0
+    active: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "period", _param(self.period, "source.period", positive=True))
+        if self.phase is not None:
+            object.__setattr__(self, "phase", _param(self.phase, "source.phase"))
+        if isinstance(self.modulation, dict):
+            object.__setattr__(self, "modulation", _from_dict(Modulation, self.modulation, "modulation"))
+        check(isinstance(self.modulation, Modulation), "source.modulation", self.modulation, "a Modulation")
+        object.__setattr__(self, "amplitude", _param(self.amplitude, "source.amplitude", positive=True))
+        check(isinstance(self.amplitude_std, (int, float)) and math.isfinite(self.amplitude_std)
+              and self.amplitude_std >= 0, "source.amplitude_std", self.amplitude_std, "must be >= 0")
+        windows = []
+        for w in self.active:
+            w = _floats(w, "source.active")
+            check(len(w) == 2 and 0 <= w[0] < w[1], "source.active", self.active,
+                  "a list of [start, stop] fractions of the nominal duration with 0 <= start < stop")
+            windows.append(w)
+        check(all(a[1] <= b[0] for a, b in zip(windows, windows[1:])), "source.active", self.active,
+              "windows must be sorted and must not overlap")
+        object.__setattr__(self, "active", tuple(windows))
+
+
+PRIOR_KINDS = ("explicit", "perturbed", "none")
+
+
+@dataclass(frozen=True)
+class PriorSpec:
+    """What the policy is told before the first pulse (reset info "priors").
+
+    kind="explicit": the papers' x_{1|0} and Sigma_{1|0}: `period`, `phase` (empty = phases unknown),
+    `period_std`, `phase_std` (one value for all, or one per prior track).  There may be more prior
+    tracks than true sources (MK94's PT run that assumes N=4 for three sources).
+    kind="perturbed": from the truth, period_prior = T * period_bias * (1 + period_error * z) with
+    z ~ N(0,1), phase_prior = phase + phase_error * T * z' (phase_error None = phases unknown).
+    kind="none": nothing but the label budget (blind mode).
+    `source_prob`: the a-priori source probabilities pi_i; empty = proportional to the true pulse
+    rates 1/T_i (MK94 section IV-2: known relative frequencies).
+    """
+
+    kind: str = "perturbed"
+    period: tuple[float, ...] = ()
+    phase: tuple[float, ...] = ()
+    period_std: tuple[float, ...] = ()
+    phase_std: tuple[float, ...] = ()
+    period_error: float = 0.0
+    period_bias: float = 1.0
+    phase_error: float | None = 0.0
+    source_prob: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        check(self.kind in PRIOR_KINDS, "priors.kind", self.kind, f"one of {', '.join(PRIOR_KINDS)}")
+        for name in ("period", "phase", "period_std", "phase_std", "source_prob"):
+            object.__setattr__(self, name, _floats(getattr(self, name), f"priors.{name}"))
+        if self.kind == "explicit":
+            n = len(self.period)
+            check(n >= 1 and min(self.period) > 0, "priors.period", self.period,
+                  "explicit priors need a positive period per prior track")
+            check(len(self.phase) in (0, n), "priors.phase", self.phase, f"empty or {n} values")
+            for name in ("period_std", "phase_std"):
+                v = getattr(self, name)
+                check(len(v) in (1, n) and min(v) > 0, f"priors.{name}", v, f"1 or {n} positive values")
+            check(len(self.source_prob) in (0, n), "priors.source_prob", self.source_prob, f"empty or {n} values")
+        else:
+            for name in ("period", "phase", "period_std", "phase_std"):
+                check(not getattr(self, name), f"priors.{name}", getattr(self, name),
+                      f"only explicit priors list values")
+        check(math.isfinite(self.period_error) and 0 <= self.period_error <= 0.5, "priors.period_error",
+              self.period_error, "0 <= period_error <= 0.5 (relative std)")
+        check(math.isfinite(self.period_bias) and 0.5 <= self.period_bias <= 2, "priors.period_bias",
+              self.period_bias, "0.5 <= period_bias <= 2")
+        check(self.phase_error is None or (math.isfinite(self.phase_error) and self.phase_error >= 0),
+              "priors.phase_error", self.phase_error, "None (phase unknown) or >= 0 (fraction of the period)")
+        if self.source_prob:
+            check(min(self.source_prob) > 0 and abs(sum(self.source_prob) - 1) < 1e-6, "priors.source_prob",
+                  self.source_prob, "positive values summing to 1")
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """A kind of episode: the sources, the channel's impairments, the episode length and the priors.
+
+    name: identifier (lower-case words joined by '-').  sources: the pulse sources.  n_pulses: episode
+    length in received pulses.  toa_jitter_std: sigma_w, white Gaussian TOA measurement noise
+    (non-cumulative).  pri_jitter_std: cumulative jitter, the std of each interval (arrival times
+    random-walk).  missing_prob: each emitted pulse is independently lost with this probability.
+    coincidence_resolution: a received pulse closer than this to its predecessor merges into it (the
+    merged pulse keeps the earlier TOA and sums the amplitudes, MK94 section VI).  spurious_rate:
+    expected spurious pulses per source pulse (a Poisson process of intensity
+    spurious_rate * sum_i 1/T_i).  amplitudes: whether pulses carry an amplitude; amplitude_noise_std
+    is its measurement noise.  priors: see PriorSpec.  blind: unknown number of sources and no priors;
+    the action then names one of `label_budget` labels and is rewarded per link.  n_active: in blind
+    mode, the number of sources (the first k of `sources`) drawn per episode from [lo, hi].
+    """
+
+    name: str
+    sources: tuple[SourceSpec, ...]
+    n_pulses: int
+    toa_jitter_std: float = 0.0
+    pri_jitter_std: float = 0.0
+    missing_prob: float = 0.0
+    coincidence_resolution: float = 0.0
+    spurious_rate: float = 0.0
+    amplitudes: bool = False
+    amplitude_noise_std: float = 0.0
+    priors: PriorSpec = field(default_factory=PriorSpec)
+    blind: bool = False
+    label_budget: int = 0
+    n_active: tuple[int, int] | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.name, str) and 0 < len(self.name) <= 80
+              and all(c.isalnum() or c in "-_." for c in self.name), "name", self.name,
+              "1-80 characters of letters, digits, '-', '_', '.'")
+        srcs = tuple(_from_dict(SourceSpec, s, "source") if isinstance(s, dict) else s for s in self.sources)
+        check(1 <= len(srcs) <= MAX_SOURCES and all(isinstance(s, SourceSpec) for s in srcs), "sources",
+              len(srcs), f"1 to {MAX_SOURCES} SourceSpec entries")
+        object.__setattr__(self, "sources", srcs)
+        check(isinstance(self.n_pulses, int) and not isinstance(self.n_pulses, bool)
+              and 1 <= self.n_pulses <= 10_000_000, "n_pulses", self.n_pulses, "an integer in [1, 10^7]")
+        for name, hi in (("toa_jitter_std", math.inf), ("pri_jitter_std", math.inf), ("missing_prob", 0.9),
+                         ("coincidence_resolution", math.inf), ("spurious_rate", 10.0),
+                         ("amplitude_noise_std", math.inf)):
+            v = getattr(self, name)
+            check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= hi,
+                  name, v, f"a number in [0, {hi}]")
+            object.__setattr__(self, name, float(v))
+        check(any(not s.active or s.active[-1][1] >= 1.0 for s in srcs), "sources", "active windows",
+              "at least one source must stay on to the end (no windows, or a last window with stop >= 1)")
+        min_period = min(_param_low(s.period) * s.modulation.min_ratio() for s in srcs)
+        check(self.pri_jitter_std <= min_period / 3, "pri_jitter_std", self.pri_jitter_std,
+              f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")
+        check(self.amplitudes or self.amplitude_noise_std == 0, "amplitude_noise_std", self.amplitude_noise_std,
+              "needs amplitudes=true")
+        if isinstance(self.priors, dict):
+            object.__setattr__(self, "priors", _from_dict(PriorSpec, self.priors, "priors"))
+        check(isinstance(self.priors, PriorSpec), "priors", self.priors, "a PriorSpec")
+        if self.blind:
+            check(self.priors.kind == "none", "priors.kind", self.priors.kind, "blind scenarios take kind='none'")
+            check(isinstance(self.label_budget, int) and len(srcs) <= self.label_budget <= 256, "label_budget",
+                  self.label_budget, f"an integer in [{len(srcs)}, 256] (at least the number of sources)")
+            if self.n_active is not None:
+                lo, hi = self.n_active
+                object.__setattr__(self, "n_active", (int(lo), int(hi)))
+                check(1 <= lo <= hi <= len(srcs), "n_active", self.n_active, f"1 <= lo <= hi <= {len(srcs)}")
+        else:
+            check(self.priors.kind != "none", "priors.kind", self.priors.kind,
+                  "anchored scenarios need explicit or perturbed priors")
+            check(self.label_budget == 0 and self.n_active is None, "label_budget", self.label_budget,
+                  "label_budget and n_active are for blind scenarios")
+            if self.priors.kind == "explicit":
+                check(len(self.priors.period) >= len(srcs), "priors.period", self.priors.period,
+                      f"at least one prior track per source ({len(srcs)})")
+            if self.priors.kind == "perturbed":
+                check(not self.priors.source_prob or len(self.priors.source_prob) == len(srcs),
+                      "priors.source_prob", self.priors.source_prob, f"{len(srcs)} values")
+
+    # ---- derived -------------------------------------------------------------------------------
+    @property
+    def n_labels(self) -> int:
+        """Labels other than 'spurious': the prior tracks (anchored) or the label budget (blind)."""
+        if self.blind:
+            return self.label_budget
+        if self.priors.kind == "explicit":
+            return len(self.priors.period)
+        return len(self.sources)
+
+    @property
+    def spurious_label(self) -> int:
+        return self.n_labels
+
+    @property
+    def mean_rate(self) -> float:
+        """Expected source pulses per unit time (all sources on), from the mean periods."""
+        return float(sum(1.0 / _param_mean(s.period) for s in self.sources))
+
+    # ---- serialisation ---------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict; fields at their default are left out so new fields keep old hashes."""
+        return _to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ScenarioSpec:
+        return _from_dict(cls, d, "scenario")
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    @property
+    def content_hash(self) -> str:
+        return hashlib.sha256(self.to_json().encode()).hexdigest()[:16]
+
+    def replace(self, **changes: Any) -> ScenarioSpec:
+        return dataclasses.replace(self, **changes)
+
+
+def _to_dict(obj: Any) -> Any:
+    if isinstance(obj, Range):
+        return {"low": obj.low, "high": obj.high, **({"log": True} if obj.log else {})}
+    if dataclasses.is_dataclass(obj):
+        out = {}
+        for f in fields(obj):
+            v = getattr(obj, f.name)
+            default = f.default if f.default is not dataclasses.MISSING else (
+                f.default_factory() if f.default_factory is not dataclasses.MISSING else dataclasses.MISSING)
+            if default is not dataclasses.MISSING and v == default:
+                continue
+            out[f.name] = _to_dict(v)
+        return out
+    if isinstance(obj, tuple):
+        return [_to_dict(v) for v in obj]
+    return obj
+
+
+def _from_dict(cls: type, d: Any, what: str) -> Any:
+    if not isinstance(d, dict):
+        raise DeintError(f"{what} must be a JSON object, got {type(d).__name__}")
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise DeintError(f"{what} field {unknown[0]!r} is unknown; allowed: {', '.join(sorted(names))}")
+    kwargs = dict(d)
+    if cls is ScenarioSpec and "sources" in kwargs:
+        check(isinstance(kwargs["sources"], (list, tuple)), "sources", kwargs["sources"], "a list of sources")
+        kwargs["sources"] = tuple(kwargs["sources"])
+    if cls is ScenarioSpec and isinstance(kwargs.get("n_active"), list):
+        kwargs["n_active"] = tuple(kwargs["n_active"])
+    if cls is SourceSpec and "active" in kwargs:
+        check(isinstance(kwargs["active"], (list, tuple)), "source.active", kwargs["active"], "a list of windows")
+        kwargs["active"] = tuple(tuple(w) if isinstance(w, list) else w for w in kwargs["active"])
+    try:
+        return cls(**kwargs)
+    except TypeError as e:  # a required field is missing
+        raise DeintError(f"{what}: {e}") from None

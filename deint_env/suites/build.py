@@ -1,0 +1,283 @@
+"""Writes the suite files (`python -m deint_env.suites.build`).  The JSON files are the source of truth:
+a published suite never changes, and tests check each file against its hash in HISTORY.json.  To
+change a suite, add a new version here (e.g. `core-v1`) and publish it with `--publish "note"`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
+from deint_env.suites import Suite, SuiteEntry, SeedRange
+
+HERE = Path(__file__).parent
+TRAIN = SeedRange(0, 100_000)
+
+
+def test_seeds(n: int) -> SeedRange:
+    return SeedRange(1_000_000, 1_000_000 + n)
+
+
+def entry(spec: ScenarioSpec, tags, settings, n_test: int = 10) -> SuiteEntry:
+    return SuiteEntry(spec, tuple(tags), settings, TRAIN, test_seeds(n_test))
+
+
+def explicit(period, phase, std) -> PriorSpec:
+    """MK94's x_{1|0} = (T..., phi...) with Sigma_{1|0} = std^2 I."""
+    return PriorSpec(kind="explicit", period=tuple(period), phase=tuple(phase), period_std=(std,), phase_std=(std,))
+
+
+def sources(periods, phases) -> tuple[SourceSpec, ...]:
+    return tuple(SourceSpec(period=float(t), phase=float(p)) for t, p in zip(periods, phases))
+
+
+# ------------------------------------------------------------------------------------------------
+# paper-v0: every simulation of MK94 sections V-VI and CM00 section IV
+# ------------------------------------------------------------------------------------------------
+MK94_FIG4_VARIANCES = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0)
+CM00_FIVE_PRF_KHZ = (1.3238, 1.7364, 2.0830, 2.7595, 7.2244)  # Table I
+CM00_FIVE_PHASE_RAD = (4.50, 5.31, 4.90, 2.04, 2.33)  # Table II
+CM00_NEAR_PRF_KHZ = (1.1268, 1.2715, 3.9194, 5.0299)  # Table IV
+CM00_NEAR_PHASE_RAD = (0.21, 5.92, 6.10, 0.61)  # Table V
+# Section IV-B: sigma^2 = 1, 2, 5, 10 (x 1e-9 s^2), i.e. 23, 32, 51, 72 % of the smallest PRI (0.138 ms).
+CM00_JITTER = {0: 0.0, 23: math.sqrt(1e-3), 32: math.sqrt(2e-3), 51: math.sqrt(5e-3), 72: math.sqrt(10e-3)}
+
+
+def cm00_trains(prf_khz, phase_rad) -> tuple[SourceSpec, ...]:
+    """CM00's trains in milliseconds: pulse n of train i at (2 pi n + theta_i) / (2 pi f_i)."""
+    return tuple(SourceSpec(period=1.0 / f, phase=th / (2 * math.pi * f)) for f, th in zip(prf_khz, phase_rad))
+
+
+CM00_PRIORS = PriorSpec(kind="perturbed", period_bias=1 / 0.9, phase_error=None)  # PRF 10 % low, phase unknown
+
+
+def paper_v0() -> Suite:
+    e = []
+    for var, desc in ((9.0, "sigma_w = 3"), (1e4, "sigma_w = 100")):
+        e.append(entry(ScenarioSpec(
+            name=f"mk94-single-var{var:g}", sources=sources([11], [50]), n_pulses=100, toa_jitter_std=math.sqrt(var),
+            priors=explicit([1], [1], math.sqrt(1e3)),
+            description=f"MK94 V-A, Fig. 3: one source T=11, phi=50, {desc}; x_1|0=(1,1), Sigma=1e3 I"),
+            ["paper"] + (["jitter"] if var > 10 else []), {"paper": "MK94 Fig. 3", "n_sources": 1, "jitter_var": var}))
+    for var in MK94_FIG4_VARIANCES:
+        e.append(entry(ScenarioSpec(
+            name=f"mk94-two-var{var:g}", sources=sources([11, 17], [3, 4]), n_pulses=500,
+            toa_jitter_std=math.sqrt(var), priors=explicit([10, 22], [1, 2], 1.0),
+            description=f"MK94 V-B-1, Figs. 4-5: T=(11,17), phi=(3,4), sigma_w^2={var:g}; x_1|0=(10,22,1,2), Sigma=I"),
+            ["paper"] + (["jitter"] if var >= 1.5 else []), {"paper": "MK94 Figs. 4-5", "n_sources": 2,
+                                                             "jitter_var": var}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-two-wide", sources=sources([11, 80], [3, 4]), n_pulses=600, toa_jitter_std=3.0,
+        priors=explicit([60, 96], [2, 1], 1.0),
+        description="MK94 V-B-2, Fig. 6: T=(11,80), phi=(3,4), sigma_w^2=9; x_1|0=(60,96,2,1), Sigma=I"),
+        ["paper", "jitter"], {"paper": "MK94 Fig. 6", "n_sources": 2, "jitter_var": 9.0}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-three", sources=sources([11, 30, 80], [3, 4, 6]), n_pulses=600, toa_jitter_std=3.0,
+        priors=explicit([39, 40, 90], [3, 4, 2], 1.0),
+        description="MK94 V-B-3, Fig. 7: T=(11,30,80), phi=(3,4,6), sigma_w^2=9; x_1|0=(39,40,90,3,4,2), Sigma=I"),
+        ["paper", "jitter"], {"paper": "MK94 Fig. 7", "n_sources": 3, "jitter_var": 9.0}))
+    eight_t, eight_phi = [11, 19, 39, 53, 83, 113, 139, 160], [3, 4, 6, 7, 4, 10, 3, 1]
+    e.append(entry(ScenarioSpec(
+        name="mk94-eight", sources=sources(eight_t, eight_phi), n_pulses=1000, toa_jitter_std=1.0,
+        priors=explicit([7, 14, 38, 49, 83, 113, 140, 160], eight_phi, 10.0),
+        description="MK94 V-B-4, Fig. 8: eight sources, sigma_w^2=1; x_1|0 as published, Sigma=1e2 I"),
+        ["paper"], {"paper": "MK94 Fig. 8", "n_sources": 8, "jitter_var": 1.0}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-pt-three", sources=sources([11, 30, 80], [3, 4, 6]), n_pulses=4000, toa_jitter_std=6.0,
+        priors=explicit([1, 1, 1], [1, 1, 1], 1.0),
+        description="MK94 V-C-2, Fig. 9: PT with known priors, T=(11,30,80), sigma_w^2=36; x_1|0=1, Sigma=I"),
+        ["paper", "jitter"], {"paper": "MK94 Fig. 9", "n_sources": 3, "jitter_var": 36.0}))
+    five_t, five_phi = [11, 19, 39, 83, 120], [3, 4, 6, 7, 4]
+    e.append(entry(ScenarioSpec(
+        name="mk94-pt-five", sources=sources(five_t, five_phi), n_pulses=5000, toa_jitter_std=8.0,
+        priors=explicit([1] * 5, [1] * 5, 1.0),
+        description="MK94 V-C-3, Fig. 10: PT with known priors, five sources, sigma_w^2=64; x_1|0=1, Sigma=I"),
+        ["paper", "jitter"], {"paper": "MK94 Fig. 10", "n_sources": 5, "jitter_var": 64.0}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-pt-post", sources=sources([11, 30, 80], [3, 4, 6]), n_pulses=3000, toa_jitter_std=1.0,
+        priors=PriorSpec(kind="explicit", period=(1, 1, 1, 1), phase=(1, 1, 1, 1), period_std=(1e3,),
+                         phase_std=(1e3,), source_prob=(0.25, 0.25, 0.25, 0.25)),
+        description="MK94 V-C-4, Fig. 11: PT with a-posteriori probabilities, three sources but N=4 assumed, "
+                    "sigma_w^2=1; x_1|0=1, Sigma=1e6 I, pi_i=1/4"),
+        ["paper"], {"paper": "MK94 Fig. 11", "n_sources": 3, "jitter_var": 1.0}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-missing-two", sources=sources([11, 30], [3, 4]), n_pulses=400, toa_jitter_std=1.0,
+        coincidence_resolution=1.0, priors=explicit([4, 27], [3, 4], 1e3),
+        description="MK94 VI-A-2, Fig. 12: T=(11,30), sigma_w^2=1, coincident pulses merge (only one is "
+                    "received); x_1|0=(4,27,3,4), Sigma=1e6 I"),
+        ["paper", "missing"], {"paper": "MK94 Fig. 12", "n_sources": 2, "jitter_var": 1.0}))
+    e.append(entry(ScenarioSpec(
+        name="mk94-pt-missing-three", sources=sources([11, 30, 80], [3, 4, 6]), n_pulses=4000, toa_jitter_std=6.0,
+        coincidence_resolution=1.0, priors=explicit([1, 1, 1], [1, 1, 1], 1e3),
+        description="MK94 VI-B, Fig. 13: PT with known priors and merged coincident pulses, T=(11,30,80), "
+                    "sigma_w^2=36; x_1|0=1, Sigma=1e6 I"),
+        ["paper", "missing", "jitter"], {"paper": "MK94 Fig. 13", "n_sources": 3, "jitter_var": 36.0}))
+    # --- CM00 (times in ms, PRFs in kHz) ---
+    for pct, sd in CM00_JITTER.items():
+        e.append(entry(ScenarioSpec(
+            name=f"cm00-five-jitter{pct}", sources=cm00_trains(CM00_FIVE_PRF_KHZ, CM00_FIVE_PHASE_RAD),
+            n_pulses=2000, toa_jitter_std=sd, priors=CM00_PRIORS,
+            description=f"CM00 IV, Tables I-II / Figs. 5-7: the five trains of Table I, TOA jitter {pct} % of the "
+                        "smallest PRI; priors: PRFs 10 % low, phases unknown"),
+            ["paper"] + (["jitter"] if pct else []), {"paper": "CM00 Tables I-III", "n_sources": 5,
+                                                      "jitter_pct_min_pri": pct}))
+    for m in range(2, 8):
+        for pct in CM00_JITTER:
+            e.append(entry(ScenarioSpec(
+                name=f"cm00-random{m}-jitter{pct}",
+                sources=tuple(SourceSpec(period=Range(0.125, 1.0)) for _ in range(m)), n_pulses=2000,
+                toa_jitter_std=CM00_JITTER[pct], priors=CM00_PRIORS,
+                description=f"CM00 IV, Table III / Fig. 6: {m} trains with random PRFs in 1-8 kHz (periods "
+                            f"uniform in 0.125-1 ms), jitter {pct} % of 0.138 ms; priors: PRFs 10 % low, phases unknown"),
+                ["paper"] + (["jitter"] if pct else []), {"paper": "CM00 Table III", "n_sources": m,
+                                                          "jitter_pct_min_pri": pct}))
+    e.append(entry(ScenarioSpec(
+        name="cm00-near-equal", sources=cm00_trains(CM00_NEAR_PRF_KHZ, CM00_NEAR_PHASE_RAD), n_pulses=2000,
+        priors=CM00_PRIORS,
+        description="CM00 IV-C, Tables IV-V: trains 1 and 2 of near-equal PRF and phase (the EKF's failure case)"),
+        ["paper"], {"paper": "CM00 Tables IV-V", "n_sources": 4}))
+    return Suite("paper-v0", 0, "Every simulation of Moore & Krishnamurthy 1994 (sections V-VI) and Conroy & "
+                 "Moore 2000 (section IV), with the papers' own initial estimates as priors.", tuple(e))
+
+
+# ------------------------------------------------------------------------------------------------
+# core-v0, robust-v0, agile-v0, scale-v0, blind-v0
+# ------------------------------------------------------------------------------------------------
+T_MIN = 10.0
+STD_PRIORS = PriorSpec(kind="perturbed", period_error=0.01, phase_error=0.05)
+
+
+def random_sources(n: int, spread: float, **kw: Any) -> tuple[SourceSpec, ...]:
+    return tuple(SourceSpec(period=Range(T_MIN, T_MIN * spread, log=True), **kw) for _ in range(n))
+
+
+def core_v0() -> Suite:
+    e = []
+    for n in (2, 3, 4, 6, 8):
+        for spread in (1.5, 4.0, 16.0):
+            for jitter in (0.05, 0.2, 0.5):
+                e.append(entry(ScenarioSpec(
+                    name=f"core-n{n}-spread{spread:g}-jitter{jitter:g}", sources=random_sources(n, spread),
+                    n_pulses=1000, toa_jitter_std=jitter, priors=STD_PRIORS,
+                    description=f"{n} constant-PRI sources, periods log-uniform in [{T_MIN:g}, {T_MIN * spread:g}], "
+                                f"sigma_w={jitter:g}; priors: periods 1 % off, phases 5 % of a period off"),
+                    ["jitter"] if jitter >= 0.2 else [], {"n_sources": n, "period_spread": spread,
+                                                          "jitter_rel": jitter / T_MIN}))
+    return Suite("core-v0", 0, "Constant-PRI sources: 2-8 sources x 3 period spreads x 3 TOA jitter levels.", tuple(e))
+
+
+def robust_v0() -> Suite:
+    base = dict(sources=random_sources(3, 4.0), n_pulses=1000, toa_jitter_std=0.2, priors=STD_PRIORS)
+    e = []
+
+    def add(name, tags, settings, desc, **kw):
+        e.append(entry(ScenarioSpec(name=name, description=desc, **{**base, **kw}), tags, settings))
+
+    for p in (0.05, 0.1, 0.2):
+        add(f"robust-missing{p:g}", ["missing"], {"missing_prob": p}, f"each pulse missed with probability {p:g}",
+            missing_prob=p)
+    for r in (0.5, 1.0):
+        add(f"robust-merged{r:g}", ["missing"], {"coincidence_resolution": r},
+            f"pulses closer than {r:g} merge into one", coincidence_resolution=r)
+    for s in (0.05, 0.1, 0.2):
+        add(f"robust-spurious{s:g}", ["spurious"], {"spurious_rate": s}, f"{s:g} spurious pulses per source pulse",
+            spurious_rate=s)
+    srcs = list(base["sources"])
+    add("robust-dropout", ["missing"], {"event": "dropout"}, "source 3 stops halfway through",
+        sources=tuple(srcs[:2] + [SourceSpec(period=srcs[2].period, active=((0.0, 0.5),))]))
+    add("robust-onset", ["missing"], {"event": "onset"}, "source 3 starts 40 % into the episode",
+        sources=tuple(srcs[:2] + [SourceSpec(period=srcs[2].period, active=((0.4, 1.0),))]))
+    for c in (0.1, 0.3):
+        add(f"robust-cumjitter{c:g}", ["jitter"], {"pri_jitter_std": c}, f"cumulative PRI jitter {c:g} per interval",
+            pri_jitter_std=c)
+    add("robust-combined", ["missing", "spurious"], {"missing_prob": 0.1, "spurious_rate": 0.1,
+                                                     "coincidence_resolution": 0.5},
+        "10 % missed, 0.1 spurious per pulse, merging within 0.5", missing_prob=0.1, spurious_rate=0.1,
+        coincidence_resolution=0.5)
+    return Suite("robust-v0", 0, "Three sources under missing, merged and spurious pulses, dropout, onset and "
+                 "cumulative jitter.", tuple(e))
+
+
+def agile_v0() -> Suite:
+    steady = random_sources(2, 4.0)
+    agile = Range(T_MIN, 2 * T_MIN, log=True)
+    e = []
+
+    def add(name, mod, desc, all_agile=False):
+        srcs = (tuple(SourceSpec(period=agile, modulation=mod) for _ in range(3)) if all_agile
+                else (SourceSpec(period=agile, modulation=mod), *steady))
+        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=STD_PRIORS,
+                                    description=desc), ["agile"], {"modulation": mod.kind, "all_agile": all_agile}))
+
+    add("agile-stagger2", Modulation("stagger", pattern=(1.0, 1.5)), "one source with a 2-position stagger")
+    add("agile-stagger3", Modulation("stagger", pattern=(1.0, 1.3, 1.7)), "one source with a 3-position stagger")
+    add("agile-sliding", Modulation("sliding", depth=0.3, cycle=32), "one source sliding +-15 % over 32 pulses")
+    add("agile-wobulated", Modulation("sinusoidal", depth=0.1, cycle=50), "one source wobulated +-10 %, 50 pulses")
+    add("agile-wobulated-deep", Modulation("sinusoidal", depth=0.3, cycle=50), "one source wobulated +-30 %")
+    add("agile-dwell-switch", Modulation("dwell_switch", pattern=(1.0, 1.4, 0.8), cycle=20),
+        "one source switching between 3 PRIs every 20 pulses")
+    add("agile-drifting", Modulation("drifting", alpha=1.0, drift_std=0.02),
+        "one source whose period random-walks (MK94 II-C-2, alpha=1)")
+    add("agile-drifting-alpha", Modulation("drifting", alpha=0.9995, drift_std=0.01),
+        "one source whose period shrinks (MK94 II-C-2, alpha=0.9995)")
+    add("agile-all-stagger", Modulation("stagger", pattern=(1.0, 1.3, 1.7)), "three 3-position staggered sources",
+        all_agile=True)
+    return Suite("agile-v0", 0, "Agile PRIs: stagger, sliding, wobulated, dwell-and-switch, drifting.", tuple(e))
+
+
+def scale_v0() -> Suite:
+    e = []
+    for n_pulses, n in ((10_000, 4), (10_000, 16), (100_000, 8), (100_000, 32), (1_000_000, 8), (1_000_000, 32)):
+        e.append(entry(ScenarioSpec(
+            name=f"scale-{n_pulses}p-{n}s", sources=random_sources(n, n / 2), n_pulses=n_pulses, toa_jitter_std=0.1,
+            priors=STD_PRIORS, description=f"{n} sources, {n_pulses} pulses"), ["scale"],
+            {"n_sources": n, "n_pulses": n_pulses}, n_test=2))
+    return Suite("scale-v0", 0, "Long episodes (10^4-10^6 pulses) with up to 32 sources.", tuple(e))
+
+
+def blind_v0() -> Suite:
+    e = []
+    for lo, hi in ((2, 2), (3, 3), (2, 5), (4, 6)):
+        for jitter in (0.1, 0.5):
+            e.append(entry(ScenarioSpec(
+                name=f"blind-n{lo}to{hi}-jitter{jitter:g}", sources=random_sources(hi, 8.0), n_pulses=1000,
+                toa_jitter_std=jitter, blind=True, label_budget=8, n_active=(lo, hi), priors=PriorSpec(kind="none"),
+                description=f"{lo}-{hi} sources (unknown), no priors, 8 labels, sigma_w={jitter:g}"),
+                ["blind"] + (["jitter"] if jitter >= 0.5 else []), {"n_sources_low": lo, "n_sources_high": hi,
+                                                                    "jitter_rel": jitter / T_MIN}))
+    return Suite("blind-v0", 0, "Unknown number of sources and no priors: link-rewarded labels.", tuple(e))
+
+
+BUILDERS = {"paper-v0": paper_v0, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
+            "scale-v0": scale_v0, "blind-v0": blind_v0}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("suites", nargs="*", default=list(BUILDERS))
+    ap.add_argument("--publish", metavar="NOTE", help="record the written suites' hashes in HISTORY.json")
+    args = ap.parse_args(argv)
+    hist_path = HERE / "HISTORY.json"
+    hist = json.loads(hist_path.read_text()) if hist_path.exists() else {}
+    for name in args.suites:
+        suite = BUILDERS[name]()
+        published = hist.get(name)
+        if published and published[-1]["hash"] != suite.content_hash:
+            raise SystemExit(f"{name} is published with hash {published[-1]['hash']}; its content would change "
+                             f"to {suite.content_hash}. Make a new version instead.")
+        (HERE / f"{name}.json").write_text(json.dumps(suite.to_json_dict(), indent=1) + "\n")
+        if args.publish and not published:
+            hist[name] = [{"hash": suite.content_hash, "date": datetime.date.today().isoformat(),
+                           "note": args.publish}]
+        print(f"{name}: {len(suite)} scenarios, hash {suite.content_hash}")
+    if args.publish:
+        hist_path.write_text(json.dumps(hist, indent=1, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -11,6 +11,9 @@ import numpy as np
 from deint_env.errors import DeintError
 
 
+SCALARS = ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate", "coincidence_resolution")
+
+
 @dataclass(frozen=True, eq=False)
 class Priors:
     """The public priors handed to a policy at reset: never the truth.
@@ -31,6 +34,7 @@ class Priors:
     pri_jitter_std: float = 0.0
     missing_prob: float = 0.0
     spurious_rate: float = 0.0
+    coincidence_resolution: float = 0.0
     amplitude: np.ndarray | None = None
     amplitude_std: np.ndarray | None = None
 
@@ -47,7 +51,7 @@ class Priors:
         out: dict[str, Any] = {"n_labels": self.n_labels, "blind": self.blind}
         for name in ("period", "phase", "period_std", "phase_std", "source_prob"):
             out[name] = np.array(getattr(self, name), dtype=np.float64)
-        for name in ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate"):
+        for name in SCALARS:
             out[name] = float(getattr(self, name))
         if self.amplitude is not None:
             out["amplitude"] = np.array(self.amplitude, dtype=np.float64)
@@ -56,8 +60,7 @@ class Priors:
 
     @classmethod
     def from_info(cls, info: dict[str, Any]) -> Priors:
-        kw = {k: info[k] for k in ("n_labels", "blind", "jitter_std", "pri_jitter_std", "missing_prob",
-                                   "spurious_rate") if k in info}
+        kw = {k: info[k] for k in ("n_labels", "blind", *SCALARS) if k in info}
         for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std"):
             if info.get(k) is not None:
                 kw[k] = np.asarray(info[k], dtype=np.float64)
@@ -73,8 +76,7 @@ class Priors:
             out["phase"] = self.phase.tolist()
             out["phase_std"] = self.phase_std.tolist()
         out.update(period_std=self.period_std.tolist(), source_prob=self.source_prob.tolist(),
-                   jitter_std=self.jitter_std, pri_jitter_std=self.pri_jitter_std,
-                   missing_prob=self.missing_prob, spurious_rate=self.spurious_rate)
+                   **{k: getattr(self, k) for k in SCALARS})
         if self.amplitude is not None:
             out["amplitude"] = self.amplitude.tolist()
             out["amplitude_std"] = self.amplitude_std.tolist()
@@ -85,8 +87,8 @@ class Priors:
         """Parse and validate a priors file; every problem is one `DeintError` line."""
         if not isinstance(d, dict):
             raise DeintError(f"{where}: must be a JSON object with at least 'period'")
-        allowed = {"period", "phase", "jitter_std", "period_std", "phase_std", "source_prob", "pri_jitter_std",
-                   "missing_prob", "spurious_rate", "amplitude", "amplitude_std", "blind", "label_budget"}
+        allowed = {"period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std",
+                   "blind", "label_budget", *SCALARS}
         unknown = sorted(set(d) - allowed)
         if unknown:
             raise DeintError(f"{where}: key {unknown[0]!r} is unknown; allowed: {', '.join(sorted(allowed))}")
@@ -141,6 +143,7 @@ class Priors:
             pri_jitter_std=scalar("pri_jitter_std", 0.0),
             missing_prob=scalar("missing_prob", 0.0, hi=0.9),
             spurious_rate=scalar("spurious_rate", 0.0, hi=10.0),
+            coincidence_resolution=scalar("coincidence_resolution", 0.0),
             amplitude=amplitude,
             amplitude_std=amplitude_std if amplitude_std is not None else (
                 None if amplitude is None else 0.1 * amplitude),

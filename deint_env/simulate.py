@@ -229,7 +229,8 @@ def _truth(sched, period, phase, source, mask, t_end) -> Truth:
 
 def _priors(spec: ScenarioSpec, period, phase, amp_mean, rng: np.random.Generator) -> Priors:
     common = dict(jitter_std=spec.toa_jitter_std, pri_jitter_std=spec.pri_jitter_std,
-                  missing_prob=spec.missing_prob, spurious_rate=spec.spurious_rate)
+                  missing_prob=spec.missing_prob, spurious_rate=spec.spurious_rate,
+                  coincidence_resolution=spec.coincidence_resolution)
     if spec.blind:
         return Priors(n_labels=spec.label_budget, blind=True, **common)
     ps = spec.priors

@@ -84,30 +84,40 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 30}
 
-    def __init__(self, scenario: ScenarioSpec | str | dict = DEFAULT_SCENARIO, lag: int = 0,
-                 render_mode: str | None = None, clustering_metrics: bool = True):
-        self.spec_scenario = resolve_scenario(scenario)
+    def __init__(self, scenario: ScenarioSpec | str | dict | None = DEFAULT_SCENARIO, lag: int = 0,
+                 render_mode: str | None = None, clustering_metrics: bool = True, *,
+                 n_labels: int | None = None, blind: bool = False):
+        # scenario=None (with n_labels) makes an env that only plays given episodes: see `for_episode`.
+        self.spec_scenario = resolve_scenario(scenario) if scenario is not None else None
         self.lag = check_lag(lag)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise DeintError(f"render_mode={render_mode!r} is invalid: None, 'ansi' or 'rgb_array'")
         self.render_mode = render_mode
         self.clustering_metrics = clustering_metrics
-        self.n_labels = self.spec_scenario.n_labels
-        self.blind = self.spec_scenario.blind
+        self.n_labels = self.spec_scenario.n_labels if self.spec_scenario is not None else int(n_labels)
+        self.blind = self.spec_scenario.blind if self.spec_scenario is not None else blind
         self.action_space = spaces.Discrete(self.n_labels + 1)
         self.observation_space = observation_space()
         self.episode: Episode | None = None
         self._step = 0
 
+    @classmethod
+    def for_episode(cls, episode: Episode, lag: int = 0, clustering_metrics: bool = True) -> DeinterleaveEnv:
+        """An env that plays one given episode (e.g. read from a pulse file); call `load_episode`."""
+        return cls(None, lag=lag, clustering_metrics=clustering_metrics, n_labels=episode.n_labels,
+                   blind=episode.blind)
+
     # ---- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        if self.spec_scenario is None:
+            raise gym.error.Error("this env plays given episodes only: use load_episode()")
         episode_seed = seed if seed is not None else int(self.np_random.integers(0, 2**63 - 1))
-        self.load_episode(simulate(self.spec_scenario, episode_seed))
-        return self._observation(0), self._reset_info()
+        return self.load_episode(simulate(self.spec_scenario, episode_seed))
 
-    def load_episode(self, episode: Episode) -> None:
-        """Play a given episode (simulated, or read from a pulse file) from its first pulse."""
+    def load_episode(self, episode: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Play a given episode (simulated, or read from a pulse file) from its first pulse; returns
+        the first observation and the reset info, like `reset`."""
         if episode.n_labels != self.n_labels or episode.blind != self.blind:
             raise DeintError(f"episode has {episode.n_labels} labels (blind={episode.blind}); this env expects "
                              f"{self.n_labels} (blind={self.blind})")
@@ -126,6 +136,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
             self._pred = truth.pred.tolist()
             self._alt = truth.alternatives()
             self._last = [NO_PRED] * self.n_labels
+        return self._observation(0), self._reset_info()
 
     def step(self, action):
         if self.episode is None or self._step >= self._n + self.lag:
@@ -176,7 +187,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     def _reset_info(self) -> dict[str, Any]:
         return {"priors": self.episode.priors.as_info(), "n_pulses": self._n, "lag": self.lag,
-                "has_amplitude": self.episode.amplitude is not None, "scenario": self.spec_scenario.name}
+                "has_amplitude": self.episode.amplitude is not None, "scenario": self.episode.scenario}
 
     def render(self):
         if self.render_mode is None:

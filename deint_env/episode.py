@@ -70,7 +70,7 @@ class Priors:
     def to_json_dict(self) -> dict[str, Any]:
         """`{"period": [...], "phase": [...], "jitter_std": s, ...}`; unknown phases are left out."""
         if self.blind:
-            return {"blind": True, "label_budget": self.n_labels, "jitter_std": self.jitter_std}
+            return {"blind": True, "label_budget": self.n_labels, **{k: getattr(self, k) for k in SCALARS}}
         out: dict[str, Any] = {"period": self.period.tolist()}
         if np.all(np.isfinite(self.phase)):
             out["phase"] = self.phase.tolist()
@@ -99,11 +99,17 @@ class Priors:
                 raise DeintError(f"{where}: {key}={v!r} must be a number in [{lo}, {hi}]")
             return float(v)
 
+        def _scalars() -> dict[str, float]:
+            return {"jitter_std": scalar("jitter_std", 0.0), "pri_jitter_std": scalar("pri_jitter_std", 0.0),
+                    "missing_prob": scalar("missing_prob", 0.0, hi=0.9),
+                    "spurious_rate": scalar("spurious_rate", 0.0, hi=10.0),
+                    "coincidence_resolution": scalar("coincidence_resolution", 0.0)}
+
         if d.get("blind"):
             budget = d.get("label_budget")
             if not isinstance(budget, int) or not 1 <= budget <= 256:
                 raise DeintError(f"{where}: label_budget={budget!r} must be an integer in [1, 256]")
-            return cls(n_labels=budget, blind=True, jitter_std=scalar("jitter_std", 0.0))
+            return cls(n_labels=budget, blind=True, **_scalars())
 
         def vector(key: str, n: int | None, positive: bool) -> np.ndarray | None:
             if key not in d:
@@ -139,14 +145,10 @@ class Priors:
             phase_std=phase_std if phase_std is not None else (0.05 * period if phase is not None
                                                                else np.full(n, np.nan)),
             source_prob=prob if prob is not None else rate / rate.sum(),
-            jitter_std=scalar("jitter_std", 0.0),
-            pri_jitter_std=scalar("pri_jitter_std", 0.0),
-            missing_prob=scalar("missing_prob", 0.0, hi=0.9),
-            spurious_rate=scalar("spurious_rate", 0.0, hi=10.0),
-            coincidence_resolution=scalar("coincidence_resolution", 0.0),
             amplitude=amplitude,
             amplitude_std=amplitude_std if amplitude_std is not None else (
                 None if amplitude is None else 0.1 * amplitude),
+            **_scalars(),
         )
 
 

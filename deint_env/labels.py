@@ -92,6 +92,6 @@ def correct_link(labels: np.ndarray, source: np.ndarray, mask: np.ndarray, spuri
     truth = truth or true_predecessors(source, mask)
     named = label_predecessors(labels, spurious_label)
     ok = named == truth.pred  # a spurious pulse is right iff named SPURIOUS_PRED, i.e. labelled spurious
-    if truth.alt_pulse.size:
-        ok[truth.alt_pulse] |= named[truth.alt_pulse] == truth.alt_pred
+    if truth.alt_pulse.size:  # .at: a pulse merged from 3+ sources has several alternatives
+        np.logical_or.at(ok, truth.alt_pulse, named[truth.alt_pulse] == truth.alt_pred)
     return ok

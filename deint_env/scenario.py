@@ -33,8 +33,12 @@ class Range:
     log: bool = False
 
     def __post_init__(self) -> None:
-        check(math.isfinite(self.low) and math.isfinite(self.high) and self.low <= self.high,
-              "Range", (self.low, self.high), "need finite low <= high")
+        for name in ("low", "high"):
+            v = getattr(self, name)
+            check(_is_number(v) and math.isfinite(v), f"Range.{name}", v, "must be a finite number")
+            object.__setattr__(self, name, float(v))  # Range(10, 20) and Range(10.0, 20.0) must hash alike
+        check(isinstance(self.log, bool), "Range.log", self.log, "must be true or false")
+        check(self.low <= self.high, "Range", (self.low, self.high), "need low <= high")
         check(not self.log or self.low > 0, "Range.low", self.low, "a log-uniform range needs low > 0")
 
     def draw(self, rng: np.random.Generator) -> float:
@@ -53,13 +57,26 @@ class Range:
 Param = Union[float, Range]
 
 
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _number(v: Any, what: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """A finite number in [lo, hi] (JSON gives ints, floats, strings, null: only numbers pass)."""
+    check(_is_number(v) and math.isfinite(v) and lo <= v <= hi, what, v, f"a number in [{lo:g}, {hi:g}]")
+    return float(v)
+
+
 def _param(value: Any, what: str, *, positive: bool = False, nonneg: bool = False) -> Param:
     """Coerce a JSON value (number or {"low","high","log"}) into a float or a `Range`, validated."""
     if isinstance(value, dict):
         unknown = set(value) - {"low", "high", "log"}
         check(not unknown and {"low", "high"} <= set(value), what, value,
               'a range is {"low": a, "high": b, "log": false}')
-        value = Range(float(value["low"]), float(value["high"]), bool(value.get("log", False)))
+        try:
+            value = Range(value["low"], value["high"], value.get("log", False))
+        except DeintError as e:
+            raise DeintError(f"{what}: {e}") from None
     if isinstance(value, Range):
         lo = value.low
         check(not positive or lo > 0, what, value, "must be > 0")
@@ -119,6 +136,8 @@ class Modulation:
     def __post_init__(self) -> None:
         check(self.kind in MODULATIONS, "modulation.kind", self.kind, f"one of {', '.join(MODULATIONS)}")
         object.__setattr__(self, "pattern", _floats(self.pattern, "modulation.pattern"))
+        for name in ("depth", "alpha", "drift_std"):
+            object.__setattr__(self, name, _number(getattr(self, name), f"modulation.{name}"))
         k = self.kind
         if k in ("stagger", "dwell_switch"):
             check(len(self.pattern) >= 2 and min(self.pattern) > 0, "modulation.pattern", self.pattern,
@@ -133,7 +152,8 @@ class Modulation:
         check(math.isfinite(self.depth) and (0 < self.depth < 1 if needs_depth else self.depth == 0),
               "modulation.depth", self.depth, f"{k} needs " + ("0 < depth < 1" if needs_depth else "0"))
         if k == "drifting":
-            check(0.9 <= self.alpha <= 1.1, "modulation.alpha", self.alpha, "0.9 <= alpha <= 1.1")
+            check(0.9 <= self.alpha <= 1.1, "modulation.alpha", self.alpha, "0.9 <= alpha <= 1.1 (see also "
+                  "ScenarioSpec: the period may change at most 100-fold over the episode)")
             check(math.isfinite(self.drift_std) and self.drift_std >= 0, "modulation.drift_std", self.drift_std,
                   "must be >= 0")
         else:
@@ -146,9 +166,7 @@ class Modulation:
             return min(self.pattern) / (sum(self.pattern) / len(self.pattern))
         if self.kind in ("sliding", "sinusoidal"):
             return 1.0 - self.depth
-        if self.kind == "drifting":
-            return 0.5  # alpha < 1 shrinks the PRI; the horizon loop extends if this guess is short
-        return 1.0
+        return 1.0  # drifting: a guess; the generator doubles its count when it falls short
 
 
 @dataclass(frozen=True)
@@ -177,8 +195,8 @@ class SourceSpec:
             object.__setattr__(self, "modulation", _from_dict(Modulation, self.modulation, "modulation"))
         check(isinstance(self.modulation, Modulation), "source.modulation", self.modulation, "a Modulation")
         object.__setattr__(self, "amplitude", _param(self.amplitude, "source.amplitude", positive=True))
-        check(isinstance(self.amplitude_std, (int, float)) and math.isfinite(self.amplitude_std)
-              and self.amplitude_std >= 0, "source.amplitude_std", self.amplitude_std, "must be >= 0")
+        object.__setattr__(self, "amplitude_std", _number(self.amplitude_std, "source.amplitude_std", 0.0))
+        check(isinstance(self.active, (list, tuple)), "source.active", self.active, "a list of [start, stop] windows")
         windows = []
         for w in self.active:
             w = _floats(w, "source.active")
@@ -234,11 +252,10 @@ class PriorSpec:
             for name in ("period", "phase", "period_std", "phase_std"):
                 check(not getattr(self, name), f"priors.{name}", getattr(self, name),
                       f"only explicit priors list values")
-        check(math.isfinite(self.period_error) and 0 <= self.period_error <= 0.5, "priors.period_error",
-              self.period_error, "0 <= period_error <= 0.5 (relative std)")
-        check(math.isfinite(self.period_bias) and 0.5 <= self.period_bias <= 2, "priors.period_bias",
-              self.period_bias, "0.5 <= period_bias <= 2")
-        check(self.phase_error is None or (math.isfinite(self.phase_error) and self.phase_error >= 0),
+        object.__setattr__(self, "period_error", _number(self.period_error, "priors.period_error", 0.0, 0.5))
+        object.__setattr__(self, "period_bias", _number(self.period_bias, "priors.period_bias", 0.5, 2.0))
+        check(self.phase_error is None or (_is_number(self.phase_error) and math.isfinite(self.phase_error)
+                                           and self.phase_error >= 0),
               "priors.phase_error", self.phase_error, "None (phase unknown) or >= 0 (fraction of the period)")
         if self.source_prob:
             check(min(self.source_prob) > 0 and abs(sum(self.source_prob) - 1) < 1e-6, "priors.source_prob",
@@ -282,12 +299,16 @@ class ScenarioSpec:
         check(isinstance(self.name, str) and 0 < len(self.name) <= 80
               and all(c.isalnum() or c in "-_." for c in self.name), "name", self.name,
               "1-80 characters of letters, digits, '-', '_', '.'")
+        check(isinstance(self.sources, (list, tuple)), "sources", self.sources, "a list of sources")
         srcs = tuple(_from_dict(SourceSpec, s, "source") if isinstance(s, dict) else s for s in self.sources)
         check(1 <= len(srcs) <= MAX_SOURCES and all(isinstance(s, SourceSpec) for s in srcs), "sources",
               len(srcs), f"1 to {MAX_SOURCES} SourceSpec entries")
         object.__setattr__(self, "sources", srcs)
         check(isinstance(self.n_pulses, int) and not isinstance(self.n_pulses, bool)
               and 1 <= self.n_pulses <= 10_000_000, "n_pulses", self.n_pulses, "an integer in [1, 10^7]")
+        for name in ("amplitudes", "blind"):
+            check(isinstance(getattr(self, name), bool), name, getattr(self, name), "must be true or false")
+        check(isinstance(self.description, str), "description", self.description, "must be a string")
         for name, hi in (("toa_jitter_std", math.inf), ("pri_jitter_std", math.inf), ("missing_prob", 0.9),
                          ("coincidence_resolution", math.inf), ("spurious_rate", 10.0),
                          ("amplitude_noise_std", math.inf)):
@@ -295,24 +316,34 @@ class ScenarioSpec:
             check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= hi,
                   name, v, f"a number in [0, {hi}]")
             object.__setattr__(self, name, float(v))
-        check(any(not s.active or s.active[-1][1] >= 1.0 for s in srcs), "sources", "active windows",
-              "at least one source must stay on to the end (no windows, or a last window with stop >= 1)")
         min_period = min(_param_low(s.period) * s.modulation.min_ratio() for s in srcs)
         check(self.pri_jitter_std <= min_period / 3, "pri_jitter_std", self.pri_jitter_std,
               f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")
+        check(self.coincidence_resolution < min_period / 2, "coincidence_resolution", self.coincidence_resolution,
+              f"below half the smallest PRI ({min_period:g}), or a source would merge with itself")
+        for s in srcs:  # alpha^n over a source's <= n_pulses pulses: keep the period within 100x
+            if s.modulation.kind == "drifting":
+                check(abs(math.log(s.modulation.alpha)) * self.n_pulses <= math.log(100.0), "modulation.alpha",
+                      s.modulation.alpha, f"the period may change at most 100-fold over {self.n_pulses} pulses: "
+                      f"|ln alpha| * n_pulses <= ln 100")
         check(self.amplitudes or self.amplitude_noise_std == 0, "amplitude_noise_std", self.amplitude_noise_std,
               "needs amplitudes=true")
         if isinstance(self.priors, dict):
             object.__setattr__(self, "priors", _from_dict(PriorSpec, self.priors, "priors"))
         check(isinstance(self.priors, PriorSpec), "priors", self.priors, "a PriorSpec")
+        always = len(srcs)  # the sources every episode plays
         if self.blind:
             check(self.priors.kind == "none", "priors.kind", self.priors.kind, "blind scenarios take kind='none'")
-            check(isinstance(self.label_budget, int) and len(srcs) <= self.label_budget <= 256, "label_budget",
+            check(isinstance(self.label_budget, int) and not isinstance(self.label_budget, bool)
+                  and len(srcs) <= self.label_budget <= 256, "label_budget",
                   self.label_budget, f"an integer in [{len(srcs)}, 256] (at least the number of sources)")
             if self.n_active is not None:
-                lo, hi = self.n_active
-                object.__setattr__(self, "n_active", (int(lo), int(hi)))
-                check(1 <= lo <= hi <= len(srcs), "n_active", self.n_active, f"1 <= lo <= hi <= {len(srcs)}")
+                na = self.n_active
+                check(isinstance(na, (list, tuple)) and len(na) == 2 and all(
+                    isinstance(v, int) and not isinstance(v, bool) for v in na) and 1 <= na[0] <= na[1] <= len(srcs),
+                    "n_active", na, f"[lo, hi] integers with 1 <= lo <= hi <= {len(srcs)}")
+                object.__setattr__(self, "n_active", (int(na[0]), int(na[1])))
+                always = self.n_active[0]
         else:
             check(self.priors.kind != "none", "priors.kind", self.priors.kind,
                   "anchored scenarios need explicit or perturbed priors")
@@ -324,6 +355,9 @@ class ScenarioSpec:
             if self.priors.kind == "perturbed":
                 check(not self.priors.source_prob or len(self.priors.source_prob) == len(srcs),
                       "priors.source_prob", self.priors.source_prob, f"{len(srcs)} values")
+        check(any(not s.active or s.active[-1][1] >= 1.0 for s in srcs[:always]), "source.active",
+              [list(map(list, s.active)) for s in srcs[:always]],
+              "a source every episode plays must stay on to the end (no windows, or a last window with stop >= 1)")
 
     # ---- derived -------------------------------------------------------------------------------
     @property

@@ -7,8 +7,9 @@ pulses is added; everything is sorted by TOA; pulses closer than `coincidence_re
 predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask); the first
 `n_pulses` are kept; amplitude measurement noise is added.
 
-Every random stream is a child of `SeedSequence(seed)` with a fixed role, so the same spec and seed
-give the same episode bit for bit, whatever env flavour asks for it.
+Every random stream is keyed by (seed, role, source), so the same spec and seed give the same
+episode bit for bit, whatever env flavour asks for it, and a stream that a scenario does not use is
+never made (making one costs ~10 us, a noticeable share of a short episode).
 """
 
 from __future__ import annotations
@@ -23,7 +24,13 @@ from deint_env.errors import DeintError
 from deint_env.scenario import Modulation, Range, ScenarioSpec, SourceSpec
 
 _MIN_INTERVAL = 0.05  # intervals are clipped at this fraction of the PRI so a source never runs backwards
-_N_STREAMS = 6  # draw, missing, jitter, spurious, amplitude noise, priors; then one per source
+# The random streams' roles (the second word of their seed key).
+DRAW, MISSING, JITTER, SPURIOUS, AMPLITUDE_NOISE, PRIORS, MODULATION, CUMULATIVE, AMPLITUDE = range(9)
+
+
+def stream(seed: int, role: int, index: int = 0) -> np.random.Generator:
+    """The generator of one role (and source): independent of every other by SeedSequence hashing."""
+    return np.random.default_rng([seed, role, index])
 
 
 def check_seed(seed: object) -> int:
@@ -35,11 +42,7 @@ def check_seed(seed: object) -> int:
 def simulate(spec: ScenarioSpec, seed: int) -> Episode:
     """Simulate one episode of `spec`; see the module docstring for the order of effects."""
     seed = check_seed(seed)
-    children = np.random.SeedSequence(seed).spawn(_N_STREAMS + len(spec.sources))
-    draw = np.random.default_rng(children[0])
-    # spawn() is stateful, so each source's (modulation, cumulative jitter, amplitude) streams are
-    # made once here and replayed by every horizon attempt.
-    src_streams = [c.spawn(3) for c in children[_N_STREAMS:]]
+    draw = stream(seed, DRAW)
 
     sources = spec.sources
     if spec.n_active is not None:
@@ -56,12 +59,13 @@ def simulate(spec: ScenarioSpec, seed: int) -> Episode:
     spur_intensity = spec.spurious_rate * rate
     t_start = float(min(phase.min(), 0.0))
     received_rate = rate * (1.0 - spec.missing_prob) + spur_intensity
+    received_rate *= math.exp(-received_rate * spec.coincidence_resolution)  # merging thins the stream
     horizon = float(phase.max()) + (1.15 * spec.n_pulses + 20) / received_rate
 
     # Doubling the horizon replays the same streams, so the loop is as deterministic as one pass.
     for _ in range(16):
-        sched, pulses = _generate(spec, sources, period, phase, amp_mean, h0, horizon, t_start,
-                                  spur_intensity, children, src_streams)
+        sched, pulses = _generate(spec, seed, sources, period, phase, amp_mean, h0, horizon, t_start,
+                                  spur_intensity)
         if pulses[0].size >= spec.n_pulses:
             break
         horizon *= 2
@@ -70,11 +74,10 @@ def simulate(spec: ScenarioSpec, seed: int) -> Episode:
 
     toa, source, mask, amplitude = (None if a is None else a[: spec.n_pulses] for a in pulses)
     if spec.amplitudes and spec.amplitude_noise_std > 0:
-        amplitude = amplitude + spec.amplitude_noise_std * np.random.default_rng(children[4]).standard_normal(
-            toa.size)
+        amplitude = amplitude + spec.amplitude_noise_std * stream(seed, AMPLITUDE_NOISE).standard_normal(toa.size)
     truth = _truth(sched, period, phase, source, mask, toa[-1] + 8 * spec.toa_jitter_std
                    + spec.coincidence_resolution)
-    priors = _priors(spec, period, phase, amp_mean, np.random.default_rng(children[5]))
+    priors = _priors(spec, period, phase, amp_mean, seed)
     return Episode(scenario=spec.name, seed=seed, toa=toa, amplitude=amplitude,
                    source=source, mask=mask, truth=truth, priors=priors)
 
@@ -83,13 +86,12 @@ def _draw(p: float | Range, rng: np.random.Generator) -> float:
     return p.draw(rng) if isinstance(p, Range) else float(p)
 
 
-def _generate(spec, sources, period, phase, amp_mean, h0, horizon, t_start, spur_intensity, children,
-              src_streams):
+def _generate(spec, seed, sources, period, phase, amp_mean, h0, horizon, t_start, spur_intensity):
     # --- each source's schedule (noise-free emission times) ---
     times, pris, amps = [], [], []
     for i, src in enumerate(sources):
         t, pri, amp = _emissions(src, period[i], phase[i], amp_mean[i], spec.pri_jitter_std, h0, horizon,
-                                 src_streams[i], spec.amplitudes)
+                                 seed, i, spec.amplitudes)
         times.append(t), pris.append(pri), amps.append(amp)
     counts = np.array([t.size for t in times])
     offsets = np.concatenate([[0], np.cumsum(counts)])
@@ -99,7 +101,7 @@ def _generate(spec, sources, period, phase, amp_mean, h0, horizon, t_start, spur
     # --- the receiver: misses, TOA noise, spurious pulses ---
     keep = None
     if spec.missing_prob > 0:
-        keep = np.random.default_rng(children[1]).random(sched_t.size) >= spec.missing_prob
+        keep = stream(seed, MISSING).random(sched_t.size) >= spec.missing_prob
     y = sched_t if keep is None else sched_t[keep]
     src = sched_src if keep is None else sched_src[keep]
     amp = None
@@ -107,43 +109,56 @@ def _generate(spec, sources, period, phase, amp_mean, h0, horizon, t_start, spur
         amp = np.concatenate(amps)
         amp = amp if keep is None else amp[keep]
     if spec.toa_jitter_std > 0:
-        y = y + spec.toa_jitter_std * np.random.default_rng(children[2]).standard_normal(y.size)
+        y = y + spec.toa_jitter_std * stream(seed, JITTER).standard_normal(y.size)
     if spur_intensity > 0:
-        srng = np.random.default_rng(children[3])
+        srng = stream(seed, SPURIOUS)
         n_spur = int(srng.poisson(spur_intensity * (horizon - t_start)))
-        y = np.concatenate([y, t_start + (horizon - t_start) * srng.random(n_spur)])
+        y = np.concatenate([y, t_start + (horizon - t_start) * np.sort(srng.random(n_spur))])
         src = np.concatenate([src, np.full(n_spur, -1, np.int32)])
         if amp is not None:
             amp = np.concatenate([amp, srng.uniform(0.5 * amp_mean.min(), 1.5 * amp_mean.max(), n_spur)])
-    # Past `complete`, emissions after the horizon (not generated) could still have landed: cut there.
+    # The stable sort merges the few time-ordered runs (one per source, one of spurious pulses) fast;
+    # with many runs numpy's SIMD default sort is faster.  Without ties every sort gives the same
+    # order; with ties (exact coincidences without jitter) only the stable one is platform-independent.
+    stable = len(sources) <= 3
+    order = np.argsort(y, kind="stable" if stable else None)
+    toa = y[order]
+    if not stable and np.any(toa[1:] == toa[:-1]):
+        order = np.argsort(y, kind="stable")
+        toa = y[order]
+    # Past `complete`, emissions after the horizon (not generated) could still have landed: cut there,
+    # and gather the other columns only for the pulses the episode keeps.
     complete = horizon - 8 * spec.toa_jitter_std - spec.coincidence_resolution
-    inside = y < complete
-    if not inside.all():
-        y, src = y[inside], src[inside]
-        amp = None if amp is None else amp[inside]
-
-    order = np.argsort(y, kind="stable")
-    toa, src = y[order], src[order]
+    cut = int(np.searchsorted(toa, complete))
+    starts = None
+    if spec.coincidence_resolution > 0 and cut > 1:
+        starts = np.flatnonzero(np.concatenate([[True], np.diff(toa[:cut]) >= spec.coincidence_resolution]))
+        if starts.size > spec.n_pulses:
+            cut = int(starts[spec.n_pulses])
+            starts = starts[: spec.n_pulses]
+    elif cut > spec.n_pulses:
+        cut = spec.n_pulses
+    order, toa = order[:cut], toa[:cut]
+    src = src[order]
     amp = None if amp is None else amp[order]
     # One gather gives each pulse its bit; index -1 (spurious) picks the trailing 0.
     bit_of = np.append(np.left_shift(np.uint64(1), np.arange(len(sources), dtype=np.uint64)), np.uint64(0))
     bits = bit_of[src]
-    if spec.coincidence_resolution > 0 and toa.size > 1:
-        toa, src, bits, amp = _merge(toa, src, bits, amp, spec.coincidence_resolution)
+    if starts is not None and starts.size < toa.size:
+        toa, src, bits, amp = _merge(toa, src, bits, amp, starts)
     sched = (sched_t, np.concatenate(pris), offsets)
     return sched, (toa, src, bits, amp)
 
 
 def _emissions(src: SourceSpec, period: float, phase: float, amp_mean: float, cum_std: float, h0: float,
-               horizon: float, streams: list[np.random.SeedSequence], track_amplitude: bool):
+               horizon: float, seed: int, i: int, track_amplitude: bool):
     """One source's emission times in [phase, horizon), the PRI after each, and emitted amplitudes."""
-    mod_ss, cum_ss, amp_ss = streams
     if horizon <= phase:
         return np.zeros(0), np.zeros(0), (np.zeros(0) if track_amplitude else None)
     m = int((horizon - phase) / (period * src.modulation.min_ratio())) + 16
     while True:
-        pri = _pri(src.modulation, period, m, np.random.default_rng(mod_ss))
-        intervals = pri if cum_std == 0 else pri + cum_std * np.random.default_rng(cum_ss).standard_normal(m)
+        pri = _pri(src.modulation, period, m, seed, i)
+        intervals = pri if cum_std == 0 else pri + cum_std * stream(seed, CUMULATIVE, i).standard_normal(m)
         np.maximum(intervals, _MIN_INTERVAL * pri, out=intervals)
         t = np.empty(m)
         t[0] = phase
@@ -156,7 +171,7 @@ def _emissions(src: SourceSpec, period: float, phase: float, amp_mean: float, cu
     t, pri = t[:n], pri[:n]
     amp = np.full(n, amp_mean) if track_amplitude else None
     if track_amplitude and src.amplitude_std > 0:
-        amp += src.amplitude_std * np.random.default_rng(amp_ss).standard_normal(n)
+        amp += src.amplitude_std * stream(seed, AMPLITUDE, i).standard_normal(n)
         np.maximum(amp, 0.0, out=amp)
     if src.active:
         on = np.zeros(n, bool)
@@ -167,7 +182,7 @@ def _emissions(src: SourceSpec, period: float, phase: float, amp_mean: float, cu
     return t, pri, amp
 
 
-def _pri(mod: Modulation, period: float, m: int, rng: np.random.Generator) -> np.ndarray:
+def _pri(mod: Modulation, period: float, m: int, seed: int, i: int) -> np.ndarray:
     """PRI_n for n = 0..m-1 (the interval after pulse n), per `Modulation`'s definitions."""
     kind = mod.kind
     if kind == "constant":
@@ -180,27 +195,39 @@ def _pri(mod: Modulation, period: float, m: int, rng: np.random.Generator) -> np
     if kind == "sliding":
         return period * (1.0 + mod.depth * ((n % mod.cycle) / (mod.cycle - 1) - 0.5))
     if kind == "sinusoidal":
-        psi = 2 * np.pi * rng.random()
+        psi = 2 * np.pi * stream(seed, MODULATION, i).random()
         return period * (1.0 + mod.depth * np.sin(2 * np.pi * n / mod.cycle + psi))
     # drifting (MK94 II-C-2): PRI_{n+1} = alpha PRI_n + drift_std v_n, a first-order recursion.
     drive = np.empty(m)
     drive[0] = period
-    drive[1:] = mod.drift_std * rng.standard_normal(m - 1)
+    drive[1:] = mod.drift_std * stream(seed, MODULATION, i).standard_normal(m - 1)
     pri = lfilter([1.0], [1.0, -mod.alpha], drive)
     return np.maximum(pri, _MIN_INTERVAL * period)
 
 
-def _merge(toa, src, bits, amp, resolution):
-    """Merge each pulse closer than `resolution` to its predecessor into it (chains merge whole)."""
-    starts = np.flatnonzero(np.concatenate([[True], np.diff(toa) >= resolution]))
-    if starts.size == toa.size:
-        return toa, src, bits, amp
-    mask = np.bitwise_or.reduceat(bits, starts)
-    amp = None if amp is None else np.add.reduceat(amp, starts)
-    # The primary source is the earliest member that is not spurious.
-    n = toa.size
-    first_real = np.minimum.reduceat(np.where(src >= 0, np.arange(n), n), starts)
-    primary = np.where(first_real < n, src[np.minimum(first_real, n - 1)], -1).astype(np.int32)
+def _merge(toa, src, bits, amp, starts):
+    """Merge each run of pulses closer than the resolution to their predecessor (group `starts`).
+
+    Merged runs are rare, so the work is a gather at the run starts plus scatters of the few others.
+    """
+    is_start = np.zeros(toa.size, bool)
+    is_start[starts] = True
+    rest = np.flatnonzero(~is_start)
+    group = np.searchsorted(starts, rest, side="right") - 1
+    mask = bits[starts]
+    np.bitwise_or.at(mask, group, bits[rest])
+    if amp is not None:
+        merged_amp = amp[starts]
+        np.add.at(merged_amp, group, amp[rest])  # energies add (MK94 II-A)
+        amp = merged_amp
+    primary = src[starts]
+    # A run led by a spurious pulse takes its first real member as its primary source.
+    real = src[rest] >= 0
+    led_by_spurious = primary[group[real]] < 0
+    if led_by_spurious.any():
+        g, members = group[real][led_by_spurious], rest[real][led_by_spurious]
+        _, first = np.unique(g, return_index=True)
+        primary[g[first]] = src[members[first]]
     return toa[starts], primary, mask, amp
 
 
@@ -227,7 +254,7 @@ def _truth(sched, period, phase, source, mask, t_end) -> Truth:
                  schedule_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
 
-def _priors(spec: ScenarioSpec, period, phase, amp_mean, rng: np.random.Generator) -> Priors:
+def _priors(spec: ScenarioSpec, period, phase, amp_mean, seed: int) -> Priors:
     common = dict(jitter_std=spec.toa_jitter_std, pri_jitter_std=spec.pri_jitter_std,
                   missing_prob=spec.missing_prob, spurious_rate=spec.spurious_rate,
                   coincidence_resolution=spec.coincidence_resolution)
@@ -251,7 +278,7 @@ def _priors(spec: ScenarioSpec, period, phase, amp_mean, rng: np.random.Generato
         else:
             prob = np.full(n, 1.0 / n)
     else:
-        z = rng.standard_normal((2, k))
+        z = stream(seed, PRIORS).standard_normal((2, k))
         p_period = period * ps.period_bias * (1.0 + ps.period_error * z[0])
         p_period_std = p_period * max(ps.period_error, abs(ps.period_bias - 1.0), 1e-3)
         if ps.phase_error is None:

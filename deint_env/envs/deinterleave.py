@@ -124,11 +124,11 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         self.episode = episode
         n = len(episode)
         self._n = n
-        # Python lists: indexing them is several times faster than numpy scalars in the step loop.
-        self._toa = episode.toa.tolist()
-        self._amp = episode.amplitude.tolist() if episode.amplitude is not None else None
+        self._toa = episode.toa
+        self._amp = episode.amplitude if episode.amplitude is not None else np.zeros(n)
+        # The label check reads the primary source first: a Python list indexes faster than numpy,
+        # and its small ints are shared objects, so it costs one pointer a pulse.
         self._src = episode.source.tolist()
-        self._mask = episode.mask.tolist()
         self.labels = np.full(n, -1, dtype=np.int64)
         self._step = 0
         if self.blind:
@@ -162,7 +162,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         if not self.blind:
             if a == spur:
                 return self._src[j] < 0
-            return a < 64 and (self._mask[j] >> a) & 1 == 1
+            return a == self._src[j] or (a < 64 and (int(self.episode.mask[j]) >> a) & 1 == 1)
         if a == spur:
             return self._pred[j] == SPURIOUS_PRED
         named = self._last[a]
@@ -180,9 +180,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     def _observation(self, k: int) -> dict[str, Any]:
         if k < self._n:
-            return {"toa": np.array([self._toa[k]]),
-                    "amplitude": np.array([self._amp[k] if self._amp is not None else 0.0]),
-                    "valid": np.int64(1)}
+            return {"toa": self._toa[k:k + 1].copy(), "amplitude": self._amp[k:k + 1].copy(), "valid": np.int64(1)}
         return {"toa": np.zeros(1), "amplitude": np.zeros(1), "valid": np.int64(0)}
 
     def _reset_info(self) -> dict[str, Any]:

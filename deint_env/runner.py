@@ -171,7 +171,7 @@ def run_job(job: Job) -> dict[str, Any]:
         rec.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
     rec["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
     rec["version"] = __version__
-    return _json_ready(rec)
+    return json_ready(rec)
 
 
 def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_labels: int) -> np.ndarray:
@@ -182,11 +182,12 @@ def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_l
     return out
 
 
-def _json_ready(x: Any) -> Any:
+def json_ready(x: Any) -> Any:
+    """Plain JSON types; NaN and infinities become null (strict JSON has neither)."""
     if isinstance(x, dict):
-        return {k: _json_ready(v) for k, v in x.items()}
+        return {k: json_ready(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_json_ready(v) for v in x]
+        return [json_ready(v) for v in x]
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(x) else None
     if isinstance(x, np.integer):

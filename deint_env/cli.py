@@ -1,0 +1,481 @@
+"""The `deint` command (DESIGN section 7).
+
+    deint simulate SCENARIO --seed S -o PULSES.csv [--priors-out PRIORS.json] [--true-priors-out TRUE.json]
+    deint label PULSES.csv --policy SPEC [--priors PRIORS.json | --n-sources N --prior-periods a,b,...] -o LABELS.csv
+    deint score LABELS.csv --truth PULSES.csv [--json]
+    deint run --policy SPEC [--policy SPEC ...] (--suite SUITE | --scenario NAME) [--out RESULTS.jsonl]
+    deint suites [SUITE]
+    deint policies
+
+Bad input is one line `deint: error: ...` on stderr and exit status 2; Ctrl-C is one line and 130.
+Tables and JSON go to stdout, status lines to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from deint_env import io
+from deint_env.errors import DeintError
+from deint_env.runner import json_ready
+
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors as one line, like every other error of `deint`."""
+
+    def error(self, message: str):
+        self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
+
+
+def _status(text: str) -> None:
+    print(text, file=sys.stderr)
+
+
+def _check_outputs(*paths: str | None) -> None:
+    """Fail before anything is written when an output's directory is missing."""
+    for path in filter(None, paths):
+        if not Path(path).resolve().parent.is_dir():
+            raise DeintError(f"{path}: cannot write: directory {Path(path).parent} does not exist")
+
+
+def _same_file(a: str, b: str) -> bool:
+    return os.path.abspath(a) == os.path.abspath(b) or (
+        os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b))
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint simulate
+# ---------------------------------------------------------------------------------------------------
+def _add_simulate(sub) -> None:
+    p = sub.add_parser(
+        "simulate", help="simulate one episode of a scenario into a pulse file",
+        description="Simulate episode SEED of SCENARIO and write it as a pulse file (toa[,amplitude],source"
+                    "[,sources]).  --priors-out writes the public priors a policy is given for this episode "
+                    "(for a scenario with explicit or perturbed priors these are NOT the true parameters); "
+                    "--true-priors-out writes the true periods and phases with the channel statistics, "
+                    "which is what `deint label --policy genie` needs to label as the oracle does (exactly "
+                    "so for constant-PRI, always-on sources).")
+    p.add_argument("scenario", metavar="SCENARIO",
+                   help="a scenario name (SUITE/SCENARIO, or a bare name unique across suites; see "
+                        "`deint suites SUITE`) or a scenario JSON file (a ScenarioSpec dict)")
+    p.add_argument("--seed", type=int, required=True, help="the episode seed")
+    p.add_argument("-o", "--output", required=True, metavar="PULSES.csv", help="the pulse file to write")
+    p.add_argument("--priors-out", metavar="PRIORS.json", help="also write the public priors")
+    p.add_argument("--true-priors-out", metavar="TRUE.json",
+                   help="also write the true parameters (periods, phases, channel statistics) for genie")
+    p.add_argument("--no-truth", action="store_true", help="leave out the source (truth) columns")
+    p.set_defaults(func=cmd_simulate)
+
+
+def _scenario(text: str):
+    from deint_env.scenario import ScenarioSpec
+    from deint_env.suites import resolve_scenario
+
+    if os.path.isfile(text):
+        try:
+            return ScenarioSpec.from_dict(io.read_json(text))
+        except DeintError as e:
+            msg = str(e)
+            raise DeintError(msg if msg.startswith(text) else f"{text}: {msg}") from None
+    if text.endswith(".json"):
+        raise DeintError(f"{text}: no such scenario file")
+    return resolve_scenario(text)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from deint_env.simulate import simulate
+
+    _check_outputs(args.output, args.priors_out, args.true_priors_out)
+    spec = _scenario(args.scenario)
+    episode = simulate(spec, args.seed)
+    # Every output is formatted (and so validated) before any is written.
+    outputs = [(args.output, io.format_pulses(episode, truth=not args.no_truth))]
+    if args.priors_out:
+        outputs.append((args.priors_out, io.format_priors(episode.priors, where=args.priors_out)))
+    if args.true_priors_out:
+        outputs.append((args.true_priors_out, io.format_priors(io.true_priors(episode), where=args.true_priors_out)))
+    for path, text in outputs:
+        io.write_text(path, text)
+    _status(f"deint: {len(episode)} pulses of {spec.name} (seed {args.seed}) -> "
+            + ", ".join(path for path, _ in outputs))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint label
+# ---------------------------------------------------------------------------------------------------
+def _add_label(sub) -> None:
+    p = sub.add_parser(
+        "label", help="label a pulse file with a policy",
+        description="Label every pulse of PULSES.csv with a policy and write LABELS.csv (toa,label; "
+                    "label -1 = spurious).  The policy sees only the pulses and the priors, never the file's "
+                    "source columns.  Priors come from a priors file, or from --prior-periods (phases "
+                    "unknown), or --n-sources alone (blind: N labels, no priors).  `genie` labels from the "
+                    "periods and phases in the priors file as if they were the truth: give it the file of "
+                    "`deint simulate --true-priors-out` to get the oracle labelling.")
+    p.add_argument("pulses", metavar="PULSES.csv")
+    p.add_argument("--policy", required=True, metavar="SPEC",
+                   help="NAME or NAME:key=value,... (see `deint policies`)")
+    p.add_argument("--priors", metavar="PRIORS.json", help="the priors file")
+    p.add_argument("--n-sources", type=int, metavar="N", help="number of sources (alone: blind labelling)")
+    p.add_argument("--prior-periods", metavar="a,b,...", help="the sources' prior periods")
+    p.add_argument("--lag", type=int, metavar="D",
+                   help="the decision lag; a policy whose lag is fixed must already have it, one with a "
+                        "lag or lookahead parameter gets it set")
+    p.add_argument("--seed", type=int, default=0, help="seed of a stochastic policy (default 0)")
+    p.add_argument("-o", "--output", required=True, metavar="LABELS.csv", help="the label file to write")
+    p.set_defaults(func=cmd_label)
+
+
+def _cli_priors(args: argparse.Namespace):
+    from deint_env.episode import Priors
+
+    if args.priors is not None:
+        if args.n_sources is not None or args.prior_periods is not None:
+            raise DeintError("give either --priors or --n-sources/--prior-periods, not both")
+        return io.read_priors(args.priors)
+    if args.n_sources is not None and args.n_sources < 1:
+        raise DeintError(f"--n-sources={args.n_sources} is invalid: an integer >= 1")
+    if args.prior_periods is None:
+        if args.n_sources is None:
+            raise DeintError("the policy needs priors: give --priors PRIORS.json, or --prior-periods a,b,... "
+                             "(or --n-sources N for blind labelling)")
+        return Priors.from_json_dict({"blind": True, "label_budget": args.n_sources}, where="--n-sources")
+    try:
+        periods = [float(x) for x in args.prior_periods.split(",")]
+    except ValueError:
+        raise DeintError(f"--prior-periods={args.prior_periods!r} is invalid: comma-separated positive numbers") \
+            from None
+    if args.n_sources is not None and args.n_sources != len(periods):
+        raise DeintError(f"--n-sources={args.n_sources} but --prior-periods lists {len(periods)} periods; "
+                         f"they must agree")
+    if not all(math.isfinite(t) for t in periods):
+        raise DeintError(f"--prior-periods={args.prior_periods!r} is invalid: comma-separated positive numbers")
+    return Priors.from_json_dict({"period": periods}, where="--prior-periods")
+
+
+def _policy_with_lag(spec: str, lag: int | None):
+    """The policy of `spec`, run at `lag` if given: set through its `lag` or `lookahead` parameter
+    when it has one the spec leaves free, else it must already run at that lag."""
+    from deint_env.policies import canonical_spec, make_policy, parse_policy_spec, policy_info
+
+    policy = make_policy(spec)
+    if lag is None or policy.lag == lag:
+        return policy
+    name, kwargs = parse_policy_spec(spec)
+    params = inspect.signature(policy_info(name).load()).parameters
+    knob = next((k for k in ("lag", "lookahead") if k in params and k not in kwargs), None)
+    if knob is not None:
+        policy = make_policy(canonical_spec(name, {**kwargs, knob: lag}))
+        if policy.lag == lag:
+            return policy
+    raise DeintError(f"--lag {lag} is invalid for policy {spec!r}: it runs with lag {policy.lag}"
+                     + ("" if knob is None else f" even with {knob}={lag}") + "; drop --lag")
+
+
+def cmd_label(args: argparse.Namespace) -> int:
+    from deint_env.policies import is_oracle
+    from deint_env.runner import play
+
+    if _same_file(args.output, args.pulses):
+        raise DeintError(f"-o {args.output} would overwrite the pulse file; name another output file")
+    _check_outputs(args.output)
+    priors = _cli_priors(args)
+    policy = _policy_with_lag(args.policy, args.lag)
+    episode = io.read_pulses(args.pulses, priors)
+    t0 = time.perf_counter()
+    result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
+    seconds = time.perf_counter() - t0
+    io.write_labels(args.output, episode.toa, result.labels, priors.n_labels)
+    _status(f"deint: labelled {len(episode)} pulses with {args.policy} (lag {policy.lag}) in {seconds:.2f} s "
+            f"-> {args.output}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint score
+# ---------------------------------------------------------------------------------------------------
+def _add_score(sub) -> None:
+    p = sub.add_parser(
+        "score", help="score a label file against a truth pulse file",
+        description="Score LABELS.csv against the source columns of PULSES.csv: label accuracy, per-source "
+                    "error probability P_e and its mean, permutation-matched and link accuracy, spurious "
+                    "precision/recall and the clustering metrics (V-measure, ARI, AMI, ...).  Anchored "
+                    "by default (label i names source i); --blind scores links (accuracy = link accuracy).")
+    p.add_argument("labels", metavar="LABELS.csv")
+    p.add_argument("--truth", required=True, metavar="PULSES.csv",
+                   help="the pulse file with the source column (from `deint simulate`)")
+    p.add_argument("--n-labels", type=int, metavar="N",
+                   help="labels other than spurious (default: max(true sources, largest label + 1))")
+    p.add_argument("--blind", action="store_true", help="score links (blind mode) instead of labels")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.set_defaults(func=cmd_score)
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from deint_env.metrics import label_metrics
+
+    truth = io.read_pulse_table(args.truth)
+    if truth.source is None:
+        raise DeintError(f"{args.truth}: has no 'source' column; score needs a truth file "
+                         f"(`deint simulate` without --no-truth)")
+    if args.n_labels is not None and not 1 <= args.n_labels <= io.MAX_LABEL + 1:
+        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {io.MAX_LABEL + 1}]")
+    labels = io.read_labels(args.labels, truth.toa, args.n_labels, pulses=args.truth)
+    n_labels = args.n_labels or max(truth.n_sources, int(labels.max()) + 1, 1)
+    metrics = label_metrics(io.from_file_labels(labels, n_labels), truth.source, truth.mask, n_labels,
+                            args.blind, clustering=True)
+    metrics = json_ready({"n_labels": n_labels, "blind": args.blind, **metrics})
+    if args.json:
+        print(json.dumps(metrics, allow_nan=False))
+    else:
+        print(_metrics_table(metrics))
+    return 0
+
+
+def _metrics_table(m: dict[str, Any]) -> str:
+    rows = []
+    for key, value in m.items():
+        if key == "pe":
+            rows += [(f"pe[source {i}]", v) for i, v in enumerate(value)]
+        else:
+            rows.append((key, value))
+    width = max(len(k) for k, _ in rows)
+
+    def fmt(v: Any) -> str:
+        if v is None:
+            return "n/a"
+        return f"{v:.4f}" if isinstance(v, float) else str(v)
+
+    return "\n".join(f"{k.ljust(width)}  {fmt(v)}" for k, v in rows)
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint run
+# ---------------------------------------------------------------------------------------------------
+def _add_run(sub) -> None:
+    p = sub.add_parser(
+        "run", help="evaluate policies on a suite or a scenario",
+        description="Play every policy on every seed of a suite (or one scenario) split and print the "
+                    "summary (accuracy, normalised score with 95% intervals, ...).  Each finished episode "
+                    "is appended to the results file (default runs/TARGET-SPLIT.jsonl) and episodes "
+                    "already in it are not played again, so an interrupted run resumes when rerun.")
+    p.add_argument("--policy", action="append", default=[], metavar="SPEC",
+                   help="a policy, NAME or NAME:key=value,... (repeat for several)")
+    p.add_argument("--policies", metavar="A,B,...",
+                   help="several policies by plain name, comma-separated (use --policy for parameters)")
+    target = p.add_mutually_exclusive_group(required=True)
+    target.add_argument("--suite", help="a suite name (see `deint suites`)")
+    target.add_argument("--scenario", help="one scenario: SUITE/SCENARIO or a unique bare name")
+    p.add_argument("--split", choices=("test", "train"), default="test", help="the seed split (default test)")
+    p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K seeds of each scenario")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--out", metavar="RESULTS.jsonl", help="the results file (default runs/TARGET-SPLIT.jsonl)")
+    p.add_argument("--json", action="store_true", help="print the summary rows as JSON")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_run)
+
+
+def _run_policies(args: argparse.Namespace) -> list[str]:
+    from deint_env.policies import canonical_spec, parse_policy_spec
+
+    specs = list(args.policy)
+    if args.policies is not None:
+        names = [s.strip() for s in args.policies.split(",")]
+        bad = next((s for s in names if not s or ":" in s or "=" in s), None)
+        if bad is not None:
+            raise DeintError(f"--policies={args.policies!r} is invalid: plain policy names separated by commas; "
+                             f"give a policy with parameters as --policy NAME:key=value,...")
+        specs += names
+    if not specs:
+        raise DeintError("name at least one policy: --policy SPEC (repeatable) or --policies A,B,...")
+    out, seen = [], set()
+    for s in specs:
+        canon = canonical_spec(*parse_policy_spec(s))
+        if canon not in seen:
+            seen.add(canon)
+            out.append(s)
+    return out
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from deint_env.runner import evaluate, format_table, read_records, resolve_target, summarise
+    from deint_env.suites import list_suites, load_suite
+
+    policies = _run_policies(args)
+    if args.suite is not None:
+        target = load_suite(args.suite).name  # one line for an unknown suite
+    elif args.scenario in list_suites():
+        raise DeintError(f"--scenario {args.scenario!r} names a suite; use --suite {args.scenario}")
+    else:
+        (suite, _, entry), = resolve_target(args.scenario)
+        target = f"{suite}/{entry.name}"
+    if args.max_seeds is not None and args.max_seeds < 1:
+        raise DeintError(f"--max-seeds={args.max_seeds} is invalid: an integer >= 1")
+    out = Path(args.out) if args.out else Path("runs") / f"{target}-{args.split}.jsonl"
+    if out.is_dir():
+        raise DeintError(f"--out {out} is a directory; name a results file")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise DeintError(f"{out}: cannot create its directory ({e.strerror or e})") from None
+    before = len(read_records(out))
+    records = evaluate(policies, target, split=args.split, max_seeds=args.max_seeds, workers=args.workers,
+                       out=out, progress=not args.no_progress)
+    rows = summarise(records)
+    print(json.dumps(json_ready(rows), allow_nan=False) if args.json else format_table(rows))
+    _status(f"deint: {len(records)} episodes ({len(read_records(out)) - before} played now) in {out}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint suites, deint policies
+# ---------------------------------------------------------------------------------------------------
+def _add_suites(sub) -> None:
+    p = sub.add_parser("suites", help="list the suites, or one suite's scenarios",
+                       description="Without SUITE: every suite with its version, size, tags, seed counts, "
+                                   "content hash and whether that matches the published hash.  With SUITE: "
+                                   "its scenarios.")
+    p.add_argument("suite", nargs="?", metavar="SUITE")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_suites)
+
+
+def _published(suite) -> str:
+    from deint_env.suites import history
+
+    try:
+        versions = history().get(suite.name)
+    except FileNotFoundError:  # nothing is published yet
+        versions = None
+    if not versions:
+        return "unpublished"
+    last = versions[-1]["hash"]
+    return "published" if last == suite.content_hash else f"CHANGED (published {last})"
+
+
+def _span(values: list[int]) -> str:
+    lo, hi = min(values), max(values)
+    return str(lo) if lo == hi else f"{lo}-{hi}"
+
+
+def _table(head: list[str], body: list[list[str]]) -> str:
+    widths = [max([len(h)] + [len(r[i]) for r in body]) for i, h in enumerate(head)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip(), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body]
+    return "\n".join(lines)
+
+
+def _suite_summary(suite) -> dict[str, Any]:
+    return {"suite": suite.name, "version": suite.version, "scenarios": len(suite),
+            "tags": sorted({t for e in suite for t in e.tags}),
+            "train_seeds": _span([len(e.train) for e in suite]), "test_seeds": _span([len(e.test) for e in suite]),
+            "hash": suite.content_hash, "status": _published(suite), "description": suite.description}
+
+
+def _scenario_row(entry) -> dict[str, Any]:
+    spec = entry.spec
+    n = len(spec.sources)
+    return {"scenario": entry.name, "tags": list(entry.tags),
+            "sources": f"{spec.n_active[0]}-{spec.n_active[1]}" if spec.n_active else str(n),
+            "n_pulses": spec.n_pulses, "jitter": spec.toa_jitter_std, "settings": entry.settings,
+            "train_seeds": len(entry.train), "test_seeds": len(entry.test)}
+
+
+def cmd_suites(args: argparse.Namespace) -> int:
+    from deint_env.suites import list_suites, load_suite
+
+    if args.suite is None:
+        rows = [_suite_summary(load_suite(name)) for name in list_suites()]
+        if args.json:
+            print(json.dumps(rows, indent=1))
+        else:
+            print(_table(["suite", "version", "scenarios", "tags", "train seeds", "test seeds", "hash", "status"],
+                         [[r["suite"], str(r["version"]), str(r["scenarios"]), ",".join(r["tags"]) or "-",
+                           r["train_seeds"], r["test_seeds"], r["hash"], r["status"]] for r in rows]))
+        return 0
+    suite = load_suite(args.suite)
+    rows = [_scenario_row(e) for e in suite]
+    if args.json:
+        print(json.dumps({**_suite_summary(suite), "entries": rows}, indent=1))
+        return 0
+    s = _suite_summary(suite)
+    print(f"{s['suite']} (version {s['version']}, hash {s['hash']}, {s['status']}): {s['description']}")
+    print(_table(["scenario", "tags", "sources", "n_pulses", "jitter", "settings"],
+                 [[r["scenario"], ",".join(r["tags"]) or "-", r["sources"], str(r["n_pulses"]), f"{r['jitter']:g}",
+                   " ".join(f"{k}={v}" for k, v in r["settings"].items()) or "-"] for r in rows]))
+    return 0
+
+
+def _add_policies(sub) -> None:
+    p = sub.add_parser("policies", help="list the registered policies",
+                       description="Every registered policy; oracles (which see the truth) are marked.")
+    p.set_defaults(func=cmd_policies)
+
+
+def cmd_policies(args: argparse.Namespace) -> int:
+    from deint_env.policies import list_policies
+
+    print(_table(["policy", "kind", "needs", "description"],
+                 [[p.name, "oracle" if p.oracle else "policy", f"[{p.extra}]" if p.extra else "-", p.description]
+                  for p in list_policies()]))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# the parser and main
+# ---------------------------------------------------------------------------------------------------
+# One parser builder per subcommand, in help order.  `leaderboard`, `reproduce` and `train` join here:
+# a builder adds its subparser and sets `func` to a `cmd_*(args) -> int`.
+SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
+                                            _add_policies]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from deint_env import __version__
+
+    parser = _Parser(prog="deint", description="deint-bench: pulse-train deinterleaving benchmark.")
+    parser.add_argument("--version", action="version", version=f"deint-bench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run `deint`; returns the exit status (the console script passes it to sys.exit)."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help, --version and usage errors: argparse has printed them
+        return 0 if e.code is None else e.code if isinstance(e.code, int) else EXIT_ERROR
+    try:
+        return args.func(args)
+    except DeintError as e:
+        print(f"deint: error: {str(e).replace(chr(10), ' ')}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt as e:
+        print(f"deint: {e.args[0] if e.args else 'interrupted'}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # e.g. `deint suites | head`: the reader left; not an error of ours
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    except OSError as e:  # a file the io layer does not open itself (e.g. a results file)
+        print(f"deint: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -10,3 +10,16 @@ register_policy("nearest-prior", "baselines.floors:NearestPrior",
                 description="nearest arrival predicted by the priors, never updated (floor)")
 register_policy("genie", "baselines.genie:Genie", oracle=True,
                 description="known-parameter MAP labelling from the true schedule (ceiling, oracle)")
+register_policy("tree", "baselines.tree:TreeSearch",
+                description="MK94 II-G: the optimal full tree search (2.19), short trains only")
+register_policy("fdp", "baselines.fdp:FDP",
+                description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
+                            "supernumerary, dropout options of VI)")
+register_policy("fdp-ll", "baselines.fdp:FDPLikelihood",
+                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)")
+register_policy("pt-prior", "baselines.pt:PTPrior",
+                description="MK94 IV-2 probabilistic teacher: source drawn from the a-priori probabilities, then its KF update")
+register_policy("pt-post", "baselines.pt:PTPost",
+                description="MK94 IV probabilistic teacher: source drawn from the a-posteriori probabilities (4.1)-(4.3)")
+register_policy("pt-post-map", "baselines.pt:PTPostMAP",
+                description="pt-post learning from its samples, labelling with the most probable source")

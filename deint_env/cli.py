@@ -436,12 +436,69 @@ def cmd_policies(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------------
+# deint reproduce
+# ---------------------------------------------------------------------------------------------------
+def _add_reproduce(sub) -> None:
+    p = sub.add_parser("reproduce", help="run a paper experiment: its figure (PNG) and our numbers beside the paper's",
+                       description="Run one published experiment (or 'all'), write its figure and table to --out, "
+                                   "and print the table.  Without NAME, list the experiments.")
+    p.add_argument("name", nargs="?", help="an experiment name, or 'all'")
+    p.add_argument("--out", default="reproduce", help="output folder (default ./reproduce)")
+    p.add_argument("--quick", action="store_true", help="few seeds and short episodes (a smoke run)")
+    p.set_defaults(func=cmd_reproduce)
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from baselines.reproduce import list_experiments, run_experiment
+
+    known = list_experiments()
+    if not args.name:
+        print(_table(["experiment", "what"], [[k, v] for k, v in known.items()]))
+        return 0
+    names = list(known) if args.name == "all" else [args.name]
+    for name in names:
+        started = time.perf_counter()
+        report = run_experiment(name, args.out, quick=args.quick)
+        print(report.table() + "\n")
+        _status(f"deint: {name} in {time.perf_counter() - started:.1f} s -> "
+                f"{', '.join(str(Path(args.out) / f) for f in report.files + [name + '.txt'])}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint train
+# ---------------------------------------------------------------------------------------------------
+def _add_train(sub) -> None:
+    p = sub.add_parser("train", help="train the PPO agent on a scenario's train seeds (needs the [rl] extra)",
+                       description="Train stable-baselines3 PPO on the float32 pulse features of SCENARIO, on its "
+                                   "train seeds only, and save the checkpoint (with a JSON sidecar).")
+    p.add_argument("--scenario", default=None, help="default: the agent's two-source scenario")
+    p.add_argument("--timesteps", type=int, default=100_000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--out", default=None, help="checkpoint path (.zip); default: agents/checkpoints/")
+    p.set_defaults(func=cmd_train)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    try:
+        from agents import ppo
+    except ImportError as e:
+        raise DeintError(f"training needs {e.name}: pip install 'deint-bench[rl]'") from None
+    kwargs = {k: v for k, v in (("scenario", args.scenario), ("out", args.out)) if v is not None}
+    if args.timesteps < 1:
+        raise DeintError(f"--timesteps={args.timesteps} must be >= 1")
+    path = ppo.train(total_timesteps=args.timesteps, seed=args.seed, **kwargs)
+    _status(f"deint: trained {args.timesteps} steps -> {path}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
 # the parser and main
 # ---------------------------------------------------------------------------------------------------
-# One parser builder per subcommand, in help order.  `leaderboard`, `reproduce` and `train` join here:
-# a builder adds its subparser and sets `func` to a `cmd_*(args) -> int`.
+# One parser builder per subcommand, in help order: a builder adds its subparser and sets `func` to a
+# `cmd_*(args) -> int`.
 SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
-                                            _add_policies]
+                                            _add_policies, _add_reproduce, _add_train]
 
 
 def build_parser() -> argparse.ArgumentParser:

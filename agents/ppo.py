@@ -26,7 +26,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.episode import Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
 from deint_env.policies import policy_rng
 from deint_env.suites import find_entry
 from deint_env.wrappers import FEATURE_VERSION, FeatureTracker, PulseFeatures, SplitSeeds, feature_size
@@ -139,9 +139,9 @@ class PPOPolicy:
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
-            raise DeintError("policy 'ppo' needs anchored priors; blind scenarios have none")
+            raise NotApplicable("policy 'ppo' needs anchored priors; blind scenarios have none")
         if priors.n_labels != self.meta["n_labels"]:
-            raise DeintError(f"policy 'ppo' ({Path(self.checkpoint).name}) was trained for {self.meta['n_labels']} "
+            raise NotApplicable(f"policy 'ppo' ({Path(self.checkpoint).name}) was trained for {self.meta['n_labels']} "
                              f"tracks ({self.meta['scenario']}); this scenario has {priors.n_labels}")
         self._tracker.reset(priors)
         if not self.deterministic:

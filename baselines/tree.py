@@ -17,7 +17,7 @@ import numpy as np
 
 from baselines.kalman import Block, DLMModel, innovation, predict, prior_block, update
 from deint_env.episode import Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
 
 _MIN_JITTER_REL = 1e-6
 
@@ -60,9 +60,9 @@ class TreeSearch:
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
-            raise DeintError("tree needs priors (an anchored scenario)")
+            raise NotApplicable("tree needs priors (an anchored scenario)")
         if info.get("n_pulses", 0) > self.max_pulses:
-            raise DeintError(f"tree labels trains of at most {self.max_pulses} pulses (max_pulses); this episode "
+            raise NotApplicable(f"tree labels trains of at most {self.max_pulses} pulses (max_pulses); this episode "
                              f"has {info['n_pulses']}")
         self.priors = priors
         self.ys: list[float] = []

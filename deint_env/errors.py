@@ -7,6 +7,12 @@ class DeintError(ValueError):
     """Bad user input (a field, a file, a name): the message says what is wrong and what is allowed."""
 
 
+class NotApplicable(DeintError):
+    """A policy cannot play this scenario (e.g. a prior-based policy on a blind scenario, an agent
+    trained for another number of sources).  The runner records such episodes as not applicable and
+    leaderboards report the policy's coverage instead of a score for them."""
+
+
 def check(ok: bool, what: str, value: object, allowed: str) -> None:
     """Raise `DeintError("<what>=<value> is invalid: <allowed>")` unless `ok`."""
     if not ok:

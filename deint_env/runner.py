@@ -24,7 +24,7 @@ import numpy as np
 
 from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.episode import Episode, Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import correct_anchored, correct_link
 from deint_env.metrics import AGGREGATES, estimation_metrics, matched_labels, normalised_score, stratified_bootstrap
 from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec
@@ -152,14 +152,18 @@ def run_job(job: Job) -> dict[str, Any]:
     spec = ScenarioSpec.from_dict(job.scenario)
     policy = make_policy(job.policy)
     episode = simulate(spec, job.seed)
-    res = play(policy, episode, policy_seed=job.seed, oracle=is_oracle(job.policy))
-    genie_acc, random_acc = reference_accuracies(episode)
     rec: dict[str, Any] = {
         "suite": job.suite, "suite_hash": job.suite_hash, "scenario": spec.name,
         "scenario_hash": spec.content_hash, "tags": list(job.tags), "settings": job.settings,
         "split": job.split, "seed": job.seed, "policy": job.policy, "oracle": is_oracle(job.policy),
-        "lag": policy.lag, "n_sources": episode.truth.n_sources,
+        "lag": policy.lag, "n_sources": episode.truth.n_sources, "version": __version__,
     }
+    try:
+        res = play(policy, episode, policy_seed=job.seed, oracle=is_oracle(job.policy))
+    except NotApplicable as e:  # outside the policy's scope: recorded, so a rerun does not retry it
+        return json_ready({**rec, "applicable": False, "reason": str(e)})
+    rec["applicable"] = True
+    genie_acc, random_acc = reference_accuracies(episode)
     rec.update(res.metrics)
     rec.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
                score=normalised_score(res.metrics["accuracy"], random_acc, genie_acc))
@@ -170,7 +174,6 @@ def run_job(job: Job) -> dict[str, Any]:
             mapping = _label_of_source(res.labels, lut, episode.truth.n_sources, episode.n_labels)
         rec.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
     rec["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
-    rec["version"] = __version__
     return json_ready(rec)
 
 
@@ -293,15 +296,18 @@ def _run_pool(todo: list[Job], workers: int, keep) -> None:
 # ---------------------------------------------------------------------------------------------------
 def summarise(records: list[dict[str, Any]], reps: int = 2000, seed: int = 0) -> list[dict[str, Any]]:
     """Per policy: episode count, mean metrics, and the normalised score's mean and IQM with
-    stratified-bootstrap 95 % intervals (strata = scenarios)."""
+    stratified-bootstrap 95 % intervals (strata = scenarios).  Episodes a policy cannot play (not
+    applicable) are left out of its scores and counted in `coverage`."""
     rows = []
     for policy in sorted({r["policy"] for r in records}):
-        rs = [r for r in records if r["policy"] == policy]
+        every = [r for r in records if r["policy"] == policy]
+        rs = [r for r in every if r.get("applicable", True)]
         strata: dict[str, list[float]] = {}
         for r in rs:
             if r.get("score") is not None:
                 strata.setdefault(r["scenario"], []).append(r["score"])
-        row: dict[str, Any] = {"policy": policy, "episodes": len(rs), "oracle": bool(rs[0].get("oracle"))}
+        row: dict[str, Any] = {"policy": policy, "episodes": len(rs), "coverage": len(rs) / len(every),
+                               "oracle": bool(every[0].get("oracle"))}
         for name, fn in AGGREGATES.items():
             point, lo, hi = stratified_bootstrap([np.array(v) for v in strata.values()], fn, reps, seed)
             row[f"score_{name}"], row[f"score_{name}_low"], row[f"score_{name}_high"] = point, lo, hi
@@ -314,15 +320,18 @@ def summarise(records: list[dict[str, Any]], reps: int = 2000, seed: int = 0) ->
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    head = ["policy", "episodes", "accuracy", "score IQM [95% CI]", "score mean", "mean P_e", "V-measure",
-            "us/pulse", "lag"]
+    head = ["policy", "episodes", "coverage", "accuracy", "score IQM [95% CI]", "score mean", "mean P_e",
+            "V-measure", "us/pulse", "lag"]
+    def f(v: float, spec: str = ".3f") -> str:
+        return "-" if v is None or not math.isfinite(v) else format(v, spec)
+
     body = []
     for r in rows:
         name = r["policy"] + (" (oracle)" if r["oracle"] else "")
-        body.append([name, str(r["episodes"]), f"{r['accuracy']:.3f}",
-                     f"{r['score_iqm']:.3f} [{r['score_iqm_low']:.3f}, {r['score_iqm_high']:.3f}]",
-                     f"{r['score_mean']:.3f}", f"{r['mean_pe']:.3f}", f"{r['v_measure']:.3f}",
-                     f"{r['us_per_pulse']:.1f}", f"{r['lag']:.0f}"])
+        body.append([name, str(r["episodes"]), f"{r['coverage']:.0%}", f(r["accuracy"]),
+                     f"{f(r['score_iqm'])} [{f(r['score_iqm_low'])}, {f(r['score_iqm_high'])}]",
+                     f(r["score_mean"]), f(r["mean_pe"]), f(r["v_measure"]), f(r["us_per_pulse"], ".1f"),
+                     f(r["lag"], ".0f")])
     widths = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body]

@@ -391,16 +391,7 @@ def _reject_constant(name: str) -> None:
 def read_json(path: PathLike) -> Any:
     """A JSON file; NaN and Infinity are rejected (they are not JSON)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise DeintError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DeintError(f"{path}: is a directory, not a JSON file") from None
-    except UnicodeDecodeError:
-        raise DeintError(f"{path}: is not a UTF-8 text (JSON) file") from None
-    except OSError as e:
-        raise DeintError(f"{path}: cannot read ({e.strerror or e})") from None
+    text = _read_text(path, "JSON")
     try:
         return json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as e:

@@ -18,8 +18,15 @@ register_policy("fdp", "baselines.fdp:FDP",
 register_policy("fdp-ll", "baselines.fdp:FDPLikelihood",
                 description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)")
 register_policy("pt-prior", "baselines.pt:PTPrior",
-                description="MK94 IV-2 probabilistic teacher: source drawn from the a-priori probabilities, then its KF update")
+                description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities")
 register_policy("pt-post", "baselines.pt:PTPost",
-                description="MK94 IV probabilistic teacher: source drawn from the a-posteriori probabilities (4.1)-(4.3)")
-register_policy("pt-post-map", "baselines.pt:PTPostMAP",
-                description="pt-post learning from its samples, labelling with the most probable source")
+                description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)")
+register_policy("dokf", "baselines.pt:DOKFTracker",
+                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
+                            "update; coasts through missed arrivals")
+register_policy("ekf-bank", "baselines.ekf:EKFBank",
+                description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
+                            "phase initialisations; labels from the best filter's predicted arrivals")
+register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
+                description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
+                            "learning rule (12), in a bank as ekf-bank")

@@ -51,7 +51,7 @@ import numpy as np
 from baselines.dokf import is_spurious
 from baselines.kalman import Block, DLMModel, innovation, phase_estimate, predict, prior_block, update
 from deint_env.episode import Priors
-from deint_env.errors import DeintError, NotApplicable
+from deint_env.errors import NotApplicable
 from deint_env.policies import policy_rng
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels

@@ -91,10 +91,9 @@ def matched_labels(labels: np.ndarray, source: np.ndarray, n_labels: int) -> np.
 def clustering_metrics(source: np.ndarray, labels: np.ndarray) -> dict[str, float]:
     """The Turing Deinterleaving Challenge's metric set (V-measure is its primary).
 
-    Spurious pulses form one more true class (-1) and "spurious" one more predicted cluster.
-    Cluster-wise MCC and F1: each true source is matched to one predicted cluster (Hungarian on the
-    contingency table); the binary MCC and F1 of "in the source" vs "in its cluster" are averaged over
-    true sources (an unmatched source scores 0).
+    Spurious pulses form one more true class (-1) and "spurious" one more predicted cluster, as the
+    TDC scores noise when no `default_label` is set.  Cluster-wise MCC and F1 are the TDC's: each
+    true class's best cluster, then the worst class (`clusterwise_mcc_f1`).
     """
     from sklearn import metrics as skm  # scikit-learn is slow to import; only scoring needs it
 
@@ -110,23 +109,23 @@ def clustering_metrics(source: np.ndarray, labels: np.ndarray) -> dict[str, floa
 
 
 def clusterwise_mcc_f1(source: np.ndarray, labels: np.ndarray) -> dict[str, float]:
-    classes, s_idx = np.unique(source, return_inverse=True)
-    clusters, l_idx = np.unique(labels, return_inverse=True)
-    cont = np.zeros((classes.size, clusters.size), dtype=np.int64)
-    np.add.at(cont, (s_idx, l_idx), 1)
-    rows, cols = linear_sum_assignment(-cont)
-    n = source.size
-    mcc = np.zeros(classes.size)
-    f1 = np.zeros(classes.size)
-    class_sizes, cluster_sizes = cont.sum(1), cont.sum(0)
-    for r, c in zip(rows, cols):
-        tp = cont[r, c]
-        fp, fn = cluster_sizes[c] - tp, class_sizes[r] - tp
-        tn = n - tp - fp - fn
-        f1[r] = 2 * tp / (2 * tp + fp + fn) if tp else 0.0
-        den = math.sqrt(float(tp + fp) * float(tp + fn) * float(tn + fp) * float(tn + fn))
-        mcc[r] = (float(tp) * tn - float(fp) * fn) / den if den > 0 else 0.0
-    return {"cluster_mcc": float(mcc.mean()), "cluster_f1": float(f1.mean())}
+    """The TDC's cluster-wise MCC and F1: for every true class, the best binary score ("in this
+    cluster" against "in this class") over the predicted clusters; then the worst class."""
+    classes, t = np.unique(np.asarray(source), return_inverse=True)
+    clusters, c = np.unique(np.asarray(labels), return_inverse=True)
+    n = t.size
+    if n == 0:
+        return {"cluster_mcc": math.nan, "cluster_f1": math.nan}
+    tp = np.zeros((classes.size, clusters.size), dtype=np.float64)
+    np.add.at(tp, (t.ravel(), c.ravel()), 1.0)
+    fn = tp.sum(1, keepdims=True) - tp  # in the class, not in the cluster
+    fp = tp.sum(0, keepdims=True) - tp  # in the cluster, not in the class
+    tn = n - tp - fp - fn
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f1 = np.where(tp > 0, 2 * tp / (2 * tp + fp + fn), 0.0)
+        den = np.sqrt((tp + fp) * (tp + fn) * (tn + fp) * (tn + fn))
+        mcc = np.where(den > 0, (tp * tn - fp * fn) / den, 0.0)
+    return {"cluster_mcc": float(mcc.max(1).min()), "cluster_f1": float(f1.max(1).min())}
 
 
 # ---------------------------------------------------------------------------------------------------

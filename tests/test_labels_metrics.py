@@ -215,11 +215,13 @@ def test_label_metrics_include_clustering_on_request():
 def test_clusterwise_mcc_f1_hand_case():
     source = np.array([0, 0, 0, 1, 1, 1])
     labels = np.array([5, 5, 7, 7, 7, 7])
-    # contingency [[2, 1], [0, 3]]: class 0 <-> cluster 5, class 1 <-> cluster 7
-    # class 0: tp 2, fp 0, fn 1, tn 3 -> F1 4/5, MCC (2*3 - 0)/sqrt(2*3*3*4) = 6/sqrt(72)
-    # class 1: tp 3, fp 1, fn 0, tn 2 -> F1 6/7, MCC (3*2 - 0)/sqrt(4*3*3*2) = 6/sqrt(72)
+    # contingency [[2, 1], [0, 3]]
+    # class 0 vs cluster 5: tp 2, fp 0, fn 1, tn 3 -> F1 4/5, MCC (2*3 - 0)/sqrt(2*3*3*4) = 6/sqrt(72)
+    # class 0 vs cluster 7: tp 1, fp 3, fn 2, tn 0 -> F1 2/7, MCC (0 - 6)/sqrt(4*3*3*2) < 0: best is cluster 5
+    # class 1 vs cluster 7: tp 3, fp 1, fn 0, tn 2 -> F1 6/7, MCC (3*2 - 0)/sqrt(4*3*3*2) = 6/sqrt(72)
+    # the worst class: F1 min(4/5, 6/7) = 4/5, MCC 6/sqrt(72)
     m = clusterwise_mcc_f1(source, labels)
-    assert m["cluster_f1"] == pytest.approx((4 / 5 + 6 / 7) / 2)
+    assert m["cluster_f1"] == pytest.approx(4 / 5)
     assert m["cluster_mcc"] == pytest.approx(6 / math.sqrt(72))
     assert 6 / math.sqrt(72) == pytest.approx(skm.matthews_corrcoef(source == 0, labels == 5))
     assert 6 / math.sqrt(72) == pytest.approx(skm.matthews_corrcoef(source == 1, labels == 7))
@@ -227,23 +229,30 @@ def test_clusterwise_mcc_f1_hand_case():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_clusterwise_mcc_matches_sklearn_one_vs_rest(seed):
-    # with as many clusters as classes and a dominant diagonal, the matching is the identity
+    # with as many clusters as classes and a dominant diagonal, each class's best cluster is its own
     rng = np.random.default_rng(seed)
     source = rng.integers(0, 3, 200)
     labels = np.where(rng.random(200) < 0.8, source, rng.integers(0, 3, 200))
     m = clusterwise_mcc_f1(source, labels)
     mcc = [skm.matthews_corrcoef(source == i, labels == i) for i in range(3)]
     f1 = [skm.f1_score(source == i, labels == i) for i in range(3)]
-    assert m["cluster_mcc"] == pytest.approx(np.mean(mcc))
-    assert m["cluster_f1"] == pytest.approx(np.mean(f1))
+    assert m["cluster_mcc"] == pytest.approx(np.min(mcc))
+    assert m["cluster_f1"] == pytest.approx(np.min(f1))
 
 
-def test_clusterwise_unmatched_source_scores_zero():
-    # three classes, one cluster: one class is matched (tp 1, fp 2, fn 0 -> F1 1/2, MCC 0 with tn + fn = 0),
-    # the other two score 0
+def test_clusterwise_one_cluster_for_three_classes():
+    # each class against the one cluster: tp 1, fp 2, fn 0, tn 0 -> F1 1/2, MCC 0 (tn + fn = 0); worst: 1/2, 0
     m = clusterwise_mcc_f1(np.array([0, 1, 2]), np.array([9, 9, 9]))
-    assert m["cluster_f1"] == pytest.approx(0.5 / 3)
+    assert m["cluster_f1"] == pytest.approx(0.5)
     assert m["cluster_mcc"] == 0.0
+
+
+def test_clusterwise_worst_class_decides():
+    # class 2 is split evenly over two clusters that also hold the other classes: it is the worst
+    source = np.array([0, 0, 0, 0, 1, 1, 1, 1, 2, 2])
+    labels = np.array([0, 0, 0, 0, 1, 1, 1, 1, 0, 1])
+    # class 2 vs cluster 0: tp 1, fp 4, fn 1 -> F1 2/7; the same against cluster 1
+    assert clusterwise_mcc_f1(source, labels)["cluster_f1"] == pytest.approx(2 / 7)
 
 
 # ---- estimation --------------------------------------------------------------------------------------

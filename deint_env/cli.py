@@ -4,8 +4,15 @@
     deint label PULSES.csv --policy SPEC [--priors PRIORS.json | --n-sources N --prior-periods a,b,...] -o LABELS.csv
     deint score LABELS.csv --truth PULSES.csv [--json]
     deint run --policy SPEC [--policy SPEC ...] (--suite SUITE | --scenario NAME) [--out RESULTS.jsonl]
+              [--workers N] [--executor local|ray [--address ADDR]]
     deint suites [SUITE]
     deint policies
+    deint leaderboard (--suite SUITE | --all) [--policies A,B,...] [--workers N]
+    deint leaderboard submit FILE --suite SUITE --name NAME
+    deint leaderboard export --suite SUITE --policy SPEC -o FILE
+    deint tdc convert INPUT OUTPUT [--float64]
+
+PULSES and LABELS may also be Turing Deinterleaving Challenge files (.h5/.hdf5; see deint_env.tdc).
 
 Bad input is one line `deint: error: ...` on stderr and exit status 2; Ctrl-C is one line and 130.
 Tables and JSON go to stdout, status lines to stderr.
@@ -25,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from deint_env import io
+from deint_env import io, tdc
 from deint_env.errors import DeintError
 from deint_env.runner import json_ready
 
@@ -125,7 +132,10 @@ def _add_label(sub) -> None:
                     "source columns.  Priors come from a priors file, or from --prior-periods (phases "
                     "unknown), or --n-sources alone (blind: N labels, no priors).  `genie` labels from the "
                     "periods and phases in the priors file as if they were the truth: give it the file of "
-                    "`deint simulate --true-priors-out` to get the oracle labelling.")
+                    "`deint simulate --true-priors-out` to get the oracle labelling.  A .h5/.hdf5 input or "
+                    "output is a Turing Deinterleaving Challenge file (blind: give --n-sources N; a `tdc` "
+                    "model policy gets its full PDW rows); an .h5 output holds the input's rows and the "
+                    "predicted labels (-1 = spurious).")
     p.add_argument("pulses", metavar="PULSES.csv")
     p.add_argument("--policy", required=True, metavar="SPEC",
                    help="NAME or NAME:key=value,... (see `deint policies`)")
@@ -195,11 +205,21 @@ def cmd_label(args: argparse.Namespace) -> int:
     _check_outputs(args.output)
     priors = _cli_priors(args)
     policy = _policy_with_lag(args.policy, args.lag)
-    episode = io.read_pulses(args.pulses, priors)
+    train = None
+    if tdc.is_tdc_path(args.pulses):  # a TDC file; a TDC model policy is given its full PDW rows
+        train = tdc.read_tdc(args.pulses)
+        episode = train.episode(priors, name=Path(args.pulses).name)
+        if hasattr(policy, "attach_data"):
+            policy.attach_data(train.model_input())
+    else:
+        episode = io.read_pulses(args.pulses, priors)
     t0 = time.perf_counter()
     result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
     seconds = time.perf_counter() - t0
-    io.write_labels(args.output, episode.toa, result.labels, priors.n_labels)
+    if tdc.is_tdc_path(args.output):  # a TDC file: the input's rows with the predicted labels
+        tdc.write_labels(args.output, train or episode, result.labels, priors.n_labels, f"labels of {args.policy}")
+    else:
+        io.write_labels(args.output, episode.toa, result.labels, priors.n_labels)
     _status(f"deint: labelled {len(episode)} pulses with {args.policy} (lag {policy.lag}) in {seconds:.2f} s "
             f"-> {args.output}")
     return 0
@@ -214,7 +234,9 @@ def _add_score(sub) -> None:
         description="Score LABELS.csv against the source columns of PULSES.csv: label accuracy, per-source "
                     "error probability P_e and its mean, permutation-matched and link accuracy, spurious "
                     "precision/recall and the clustering metrics (V-measure, ARI, AMI, ...).  Anchored "
-                    "by default (label i names source i); --blind scores links (accuracy = link accuracy).")
+                    "by default (label i names source i); --blind scores links (accuracy = link accuracy).  "
+                    "A .h5/.hdf5 truth (or label) file is a Turing Deinterleaving Challenge file: its emitter "
+                    "ids are scored blind (cluster_mcc and cluster_f1 are the challenge's cluster-wise scores).")
     p.add_argument("labels", metavar="LABELS.csv")
     p.add_argument("--truth", required=True, metavar="PULSES.csv",
                    help="the pulse file with the source column (from `deint simulate`)")
@@ -225,20 +247,46 @@ def _add_score(sub) -> None:
     p.set_defaults(func=cmd_score)
 
 
+def _read_label_file(args: argparse.Namespace, toa: np.ndarray) -> np.ndarray:
+    """File labels (-1 = spurious) of a label CSV, or of a TDC file's labels (negative ids -> -1)."""
+    if not tdc.is_tdc_path(args.labels):
+        return io.read_labels(args.labels, toa, args.n_labels, pulses=args.truth)
+    labels = np.maximum(tdc.read_label_ids(args.labels, toa, args.truth), -1)
+    if args.n_labels is not None and labels.max() >= args.n_labels:
+        raise DeintError(f"{args.labels}: label {int(labels.max())} is outside --n-labels={args.n_labels} "
+                         f"(labels 0..{args.n_labels - 1}, -1 = spurious)")
+    return labels
+
+
+def _score_tdc(args: argparse.Namespace) -> dict[str, Any]:
+    """Blind scores against a TDC file's emitter ids (see `deint_env.tdc.score_labels`)."""
+    truth = tdc.read_tdc(args.truth)
+    if truth.labels is None:
+        raise DeintError(f"{args.truth}: has no 'labels' dataset; score needs the true emitter ids")
+    if args.n_labels is not None and not 1 <= args.n_labels <= io.MAX_LABEL + 1:
+        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {io.MAX_LABEL + 1}]")
+    return tdc.score_labels(_read_label_file(args, truth.toa), truth.labels, args.n_labels)
+
+
 def cmd_score(args: argparse.Namespace) -> int:
     from deint_env.metrics import label_metrics
 
+    if tdc.is_tdc_path(args.truth):  # TDC truth: emitter ids without priors, always scored blind
+        return _print_metrics(args, json_ready(_score_tdc(args)))
     truth = io.read_pulse_table(args.truth)
     if truth.source is None:
         raise DeintError(f"{args.truth}: has no 'source' column; score needs a truth file "
                          f"(`deint simulate` without --no-truth)")
     if args.n_labels is not None and not 1 <= args.n_labels <= io.MAX_LABEL + 1:
         raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {io.MAX_LABEL + 1}]")
-    labels = io.read_labels(args.labels, truth.toa, args.n_labels, pulses=args.truth)
+    labels = _read_label_file(args, truth.toa)
     n_labels = args.n_labels or max(truth.n_sources, int(labels.max()) + 1, 1)
     metrics = label_metrics(io.from_file_labels(labels, n_labels), truth.source, truth.mask, n_labels,
                             args.blind, clustering=True)
-    metrics = json_ready({"n_labels": n_labels, "blind": args.blind, **metrics})
+    return _print_metrics(args, json_ready({"n_labels": n_labels, "blind": args.blind, **metrics}))
+
+
+def _print_metrics(args: argparse.Namespace, metrics: dict[str, Any]) -> int:
     if args.json:
         print(json.dumps(metrics, allow_nan=False))
     else:
@@ -282,7 +330,14 @@ def _add_run(sub) -> None:
     target.add_argument("--scenario", help="one scenario: SUITE/SCENARIO or a unique bare name")
     p.add_argument("--split", choices=("test", "train"), default="test", help="the seed split (default test)")
     p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K seeds of each scenario")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="worker processes (default 1); with --executor ray, the CPUs of the Ray instance "
+                        "started here")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local: this process or a process pool (default); ray: Ray tasks (the [ray] extra)")
+    p.add_argument("--address", metavar="ADDR",
+                   help="with --executor ray: the Ray cluster to join (e.g. auto or ray://HOST:10001); "
+                        "default: start a local Ray instance")
     p.add_argument("--out", metavar="RESULTS.jsonl", help="the results file (default runs/TARGET-SPLIT.jsonl)")
     p.add_argument("--json", action="store_true", help="print the summary rows as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
@@ -334,7 +389,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise DeintError(f"{out}: cannot create its directory ({e.strerror or e})") from None
     before = len(read_records(out))
     records = evaluate(policies, target, split=args.split, max_seeds=args.max_seeds, workers=args.workers,
-                       out=out, progress=not args.no_progress)
+                       out=out, progress=not args.no_progress, executor=args.executor, address=args.address)
     rows = summarise(records)
     print(json.dumps(json_ready(rows), allow_nan=False) if args.json else format_table(rows))
     _status(f"deint: {len(records)} episodes ({len(read_records(out)) - before} played now) in {out}")
@@ -493,12 +548,165 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------------
+# deint tdc
+# ---------------------------------------------------------------------------------------------------
+def _add_tdc(sub) -> None:
+    p = sub.add_parser("tdc", help="Turing Deinterleaving Challenge files (HDF5): convert",
+                       description="Files of the Turing Deinterleaving Challenge (needs the [tdc] extra); "
+                                   "`deint label` and `deint score` also read and write them directly.")
+    actions = p.add_subparsers(dest="tdc_command", metavar="ACTION", required=True)
+    c = actions.add_parser("convert", help="convert a pulse file between CSV and a TDC .h5 file",
+                           description="Convert INPUT to OUTPUT, one a pulse CSV (toa[,amplitude][,source]) and "
+                                       "the other a TDC file (.h5/.hdf5: data with its feature names, int8 "
+                                       "labels, -1 = spurious).  TDC features other than toa and amplitude do "
+                                       "not fit a pulse CSV and are dropped (the status line names them).")
+    c.add_argument("input", metavar="INPUT")
+    c.add_argument("output", metavar="OUTPUT")
+    c.add_argument("--float64", action="store_true",
+                   help="write TDC data as float64 (exact TOAs) instead of the challenge's float32")
+    c.set_defaults(func=cmd_tdc_convert)
+
+
+def cmd_tdc_convert(args: argparse.Namespace) -> int:
+    if _same_file(args.input, args.output):
+        raise DeintError(f"{args.output} would overwrite the input; name another output file")
+    _check_outputs(args.output)
+    _status("deint: " + tdc.convert(args.input, args.output, "float64" if args.float64 else "float32"))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint leaderboard
+# ---------------------------------------------------------------------------------------------------
+def _add_leaderboard(sub) -> None:
+    p = sub.add_parser(
+        "leaderboard", help="score policies on a suite's test seeds: tables, plots, a web page; submissions",
+        description="Play every policy on every test episode of a suite and write ROOT/SUITE/: results.jsonl "
+                    "(per episode; an interrupted run resumes from it), leaderboard.json and .csv (normalised "
+                    "score IQM and mean with 95% stratified-bootstrap intervals, accuracy, P_e, V-measure, ARI, "
+                    "per-tag scores, period error vs CRLB, us/pulse, lag, coverage), README.md, index.html and "
+                    "PNG plots.  Default policies: every reference policy.  `deint leaderboard submit` scores "
+                    "labels made elsewhere; `deint leaderboard export` writes a policy's labels in that format.")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--suite", help="a suite name (see `deint suites`)")
+    which.add_argument("--all", action="store_true",
+                       help="regenerate the published leaderboards (paper-v0, core-v0, robust-v0, agile-v0)")
+    p.add_argument("--policy", action="append", default=[], metavar="SPEC",
+                   help="a policy, NAME or NAME:key=value,... (repeatable; default: every reference policy)")
+    p.add_argument("--policies", metavar="A,B,...", help="policies by plain name, comma-separated")
+    p.add_argument("--workers", type=int, metavar="N", help="worker processes (default: every core)")
+    p.add_argument("--root", default="leaderboards", metavar="DIR",
+                   help="the leaderboards folder (default ./leaderboards)")
+    p.add_argument("--scenarios", metavar="A,B,...", help="only these scenarios: a smoke run, not a full leaderboard")
+    p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K test seeds: a smoke run")
+    p.add_argument("--reps", type=int, default=2000, metavar="R", help="bootstrap replicates (default 2000)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_leaderboard)
+    actions = p.add_subparsers(dest="action", metavar="ACTION")
+    s = actions.add_parser(
+        "submit", help="score a submission file into a suite's leaderboard",
+        description="Validate FILE (JSON lines or NPZ: the labels of every test episode; format in the README) "
+                    "without executing anything, score it like the reference policies, and add it to ROOT/SUITE "
+                    "as 'NAME (submitted)' (replacing an earlier submission of that name).  A bad file is "
+                    "refused with one line naming the episode and the problem; the leaderboard is unchanged.")
+    s.add_argument("file", metavar="FILE")
+    s.add_argument("--suite", required=True, help="the suite the file labels")
+    s.add_argument("--name", help="the entry's name (default: the file header's name)")
+    s.add_argument("--root", default="leaderboards", metavar="DIR",
+                   help="the leaderboards folder (default ./leaderboards)")
+    s.add_argument("--reps", type=int, default=2000, metavar="R", help="bootstrap replicates (default 2000)")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    s.set_defaults(func=cmd_leaderboard_submit)
+    e = actions.add_parser(
+        "export", help="write a policy's labels of a suite's test episodes as a submission file",
+        description="Play the policy on every test episode of SUITE and write its labels in the submission "
+                    "format: JSON lines, or NPZ when FILE ends in .npz.")
+    e.add_argument("--suite", required=True)
+    e.add_argument("--policy", required=True, metavar="SPEC", help="NAME or NAME:key=value,...")
+    e.add_argument("-o", "--output", required=True, metavar="FILE")
+    e.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    e.add_argument("--scenarios", metavar="A,B,...", help="only these scenarios (matching a smoke-run leaderboard)")
+    e.add_argument("--max-seeds", type=int, metavar="K", help="only the first K test seeds")
+    e.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    e.set_defaults(func=cmd_leaderboard_export)
+
+
+def _scope(suite: str, args: argparse.Namespace):
+    from deint_env.leaderboard import Scope
+
+    names = None
+    if args.scenarios is not None:
+        names = tuple(n.strip() for n in args.scenarios.split(","))
+        if not all(names):
+            raise DeintError(f"--scenarios={args.scenarios!r} is invalid: scenario names separated by commas")
+    if args.max_seeds is not None and args.max_seeds < 1:
+        raise DeintError(f"--max-seeds={args.max_seeds} is invalid: an integer >= 1")
+    return Scope(suite, names, args.max_seeds)
+
+
+def _leaderboard_report(board: dict[str, Any], folder: Path) -> None:
+    from deint_env.leaderboard.render import COLUMNS, tidy
+
+    b = tidy(board)
+    print(f"{b['suite']} (version {b['suite_version']}, hash {b['suite_hash']}), {b['episodes']} test episodes")
+    print(_table([c[0] for c in COLUMNS], [[c[1](r) for c in COLUMNS] for r in b["rows"]]))
+    for policy, n in sorted(b["incomplete"].items()):
+        _status(f"deint: warning: {policy} has {n} of {b['episodes']} episodes; it is left out until complete")
+    _status(f"deint: leaderboard of {b['suite']} -> {folder}/ (README.md, index.html, leaderboard.json, .csv, plots)")
+
+
+def _check_reps(reps: int) -> None:
+    if reps < 100:
+        raise DeintError(f"--reps={reps} is invalid: an integer >= 100")
+
+
+def cmd_leaderboard(args: argparse.Namespace) -> int:
+    from deint_env.leaderboard import LEADERBOARD_SUITES, Scope, build, default_policies
+
+    if not args.all and args.suite is None:
+        raise DeintError("name a suite: --suite SUITE, or --all for the published leaderboards")
+    if args.all and (args.scenarios is not None or args.max_seeds is not None):
+        raise DeintError("--all regenerates the full leaderboards; --scenarios and --max-seeds are for one --suite")
+    if args.workers is not None and args.workers < 1:
+        raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
+    _check_reps(args.reps)
+    policies = _run_policies(args) if args.policy or args.policies else default_policies()
+    scopes = [Scope(s) for s in LEADERBOARD_SUITES] if args.all else [_scope(args.suite, args)]
+    for scope in scopes:
+        folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
+                              reps=args.reps)
+        _leaderboard_report(board, folder)
+    return 0
+
+
+def cmd_leaderboard_submit(args: argparse.Namespace) -> int:
+    from deint_env.leaderboard import submit
+
+    _check_reps(args.reps)
+    policy, board = submit(args.file, args.suite, args.name, root=args.root, reps=args.reps,
+                           progress=not args.no_progress)
+    _leaderboard_report(board, Path(args.root) / args.suite)
+    _status(f"deint: {args.file} accepted as {policy!r}")
+    return 0
+
+
+def cmd_leaderboard_export(args: argparse.Namespace) -> int:
+    from deint_env.leaderboard import export
+
+    if args.workers < 1:
+        raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
+    n = export(_scope(args.suite, args), args.policy, args.output, workers=args.workers, progress=not args.no_progress)
+    _status(f"deint: labels of {n} test episodes of {args.suite} by {args.policy} -> {args.output}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
 # the parser and main
 # ---------------------------------------------------------------------------------------------------
 # One parser builder per subcommand, in help order: a builder adds its subparser and sets `func` to a
 # `cmd_*(args) -> int`.
 SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
-                                            _add_policies, _add_reproduce, _add_train]
+                                            _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_tdc]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,8 +1,9 @@
 """Evaluating policies on scenarios and suites (DESIGN sections 5-6).
 
 `evaluate(policies, target)` runs every (scenario, seed, policy) job of a suite split on a local
-process pool, writes one JSON line per finished episode as it goes, and skips the jobs already in
-the file, so an interrupted run resumes where it stopped.  A job plays the policy through the env
+process pool (or, with `executor="ray"`, as tasks on a Ray instance or cluster: the same records but
+for the wall-clock `us_per_pulse`), writes one JSON line per finished episode as it goes, and skips
+the jobs already in the file, so an interrupted run resumes where it stopped.  A job plays the policy through the env
 (`play`): the policy sees only observations and the public priors (oracles also get the episode) and
 its compute time is measured.  Each record also carries the episode's genie and random accuracies,
 so the normalised score (acc - random) / (genie - random) needs nothing else.
@@ -10,6 +11,7 @@ so the normalised score (acc - random) / (genie - random) needs nothing else.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -34,6 +36,7 @@ from deint_env.simulate import simulate
 from deint_env.suites import find_entry, list_suites, load_suite
 
 SPLITS = ("test", "train")
+EXECUTORS = ("local", "ray")
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -232,14 +235,22 @@ def _ignore_sigint() -> None:  # workers leave Ctrl-C to the parent, which stops
 
 
 def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_seeds: int | None = None,
-             workers: int = 1, out: str | os.PathLike | None = None, progress: bool = True) -> list[dict[str, Any]]:
+             workers: int = 1, out: str | os.PathLike | None = None, progress: bool = True,
+             executor: str = "local", address: str | None = None) -> list[dict[str, Any]]:
     """Run every job of `target` for every policy; return their records (resumed ones included).
 
     With `out`, finished episodes are appended to that JSON-lines file as they complete and jobs
-    already in it are not run again.
+    already in it are not run again.  `executor="local"` plays the jobs in this process (workers=1)
+    or on a local process pool; `executor="ray"` submits them as Ray tasks (see `_run_ray`) to a Ray
+    instance started here with `workers` CPUs, or to the cluster at `address` ("auto" = the one this
+    machine belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.
     """
     if not isinstance(workers, int) or workers < 1:
         raise DeintError(f"workers={workers!r} is invalid: an integer >= 1")
+    if executor not in EXECUTORS:
+        raise DeintError(f"executor={executor!r} is invalid: one of {', '.join(EXECUTORS)}")
+    if address is not None and executor != "ray":
+        raise DeintError(f"address={address!r} needs executor='ray' (a Ray cluster address)")
     jobs = make_jobs(policies, target, split, max_seeds)
     wanted = {j.key for j in jobs}
     existing = [r for r in read_records(out) if record_key(r) in wanted] if out else []
@@ -257,7 +268,9 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
         bar.update()
 
     try:
-        if workers == 1 or len(todo) <= 1:
+        if executor == "ray" and todo:
+            _run_ray(todo, workers, keep, address)
+        elif workers == 1 or len(todo) <= 1:
             for job in todo:
                 keep(run_job(job))
         else:
@@ -289,6 +302,60 @@ def _run_pool(todo: list[Job], workers: int, keep) -> None:
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown()
+
+
+def _run_ray(todo: list[Job], workers: int, keep, address: str | None) -> None:
+    """Play the jobs as Ray tasks and `keep` each record as it arrives (in completion order).
+
+    Without `address` a private Ray instance with `workers` CPUs is started and shut down at the end;
+    with one, the cluster there is joined (its nodes need deint-bench installed) and left running.
+    If Ray is already initialised in this process, that instance is used as it is.  At most four
+    tasks per cluster CPU are in flight, so an interrupt cancels little and memory stays flat.
+    """
+    try:
+        import ray
+    except ImportError:
+        raise DeintError("executor 'ray' needs ray: pip install 'deint-bench[ray]'") from None
+    import logging
+
+    started = not ray.is_initialized()
+    if started:
+        try:
+            if address is None:
+                ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
+            else:
+                ray.init(address=address, logging_level=logging.WARNING)
+        except ConnectionError as e:
+            raise DeintError(f"cannot reach a Ray cluster at {address!r} ({e})") from None
+    task = ray.remote(num_cpus=1, max_retries=0)(run_job)
+    pending: list[Any] = []
+    try:
+        window = max(4 * int(ray.cluster_resources().get("CPU", workers)), 1)
+        queue = iter(todo)
+        for job in queue:
+            pending.append(task.remote(job))
+            if len(pending) >= window:
+                break
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                try:
+                    rec = ray.get(ref)
+                except ray.exceptions.RayTaskError as e:  # the job's own error, as the pool raises it
+                    cause = getattr(e, "cause", None)
+                    raise (cause if isinstance(cause, Exception) else e) from None
+                keep(rec)
+                nxt = next(queue, None)
+                if nxt is not None:
+                    pending.append(task.remote(nxt))
+    except BaseException:
+        for ref in pending:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started:
+            ray.shutdown()
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -1,0 +1,24 @@
+"""Leaderboards: every policy on a suite's test episodes, scored with honest statistics.
+
+`deint leaderboard --suite SUITE` (or `build`) writes `leaderboards/<suite>/`:
+
+- `results.jsonl`: one runner record per (entry, test episode), in canonical order; the run resumes
+  from it and never replays a finished episode;
+- `leaderboard.json`, `leaderboard.csv`: per entry the normalised score's IQM and mean with 95 %
+  stratified-bootstrap intervals (rliable), accuracy, mean P_e, V-measure, ARI, per-tag scores, period
+  error against the CRLB, us per pulse, lag, coverage, versions and the suite's hash; plus the
+  probability of improvement between the top entries (JSON);
+- `README.md` (the table for GitHub), `index.html` (sortable, per-tag tabs, no server needed) and the
+  plots (`intervals.png`, `profiles.png`, `score_vs_<setting>.png`).
+
+Bootstraps are seeded and files hold no timestamps: rebuilding from the same results gives the same
+bytes, the measured `us_per_pulse` aside.  Outside labels enter through `submit` (format in
+`deint_env.leaderboard.submit`).  Modules: `build` (running, aggregating), `stats` (rliable),
+`render` (JSON, CSV, README, HTML), `plots` (PNG), `submit` (submissions and `export`).
+"""
+
+from deint_env.leaderboard.build import LEADERBOARD_SUITES, Scope, build, default_policies, write
+from deint_env.leaderboard.submit import export, score_submission, submit
+
+__all__ = ["LEADERBOARD_SUITES", "Scope", "build", "default_policies", "export", "score_submission", "submit",
+           "write"]

@@ -1,0 +1,276 @@
+"""Running a suite's test episodes and aggregating them into leaderboard tables.
+
+`build(scope, policies)` plays every policy on every test episode of the scope through
+`deint_env.runner.evaluate` (resumable: finished episodes in `results.jsonl` are never played again),
+then `write(folder, scope)` aggregates every complete entry of `results.jsonl` (policies and
+submissions) and writes the folder's files (see `deint_env.leaderboard`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from deint_env.errors import DeintError
+from deint_env.leaderboard import stats
+from deint_env.policies import list_policies
+from deint_env.runner import evaluate, json_ready, read_records
+from deint_env.suites import TAGS, SuiteEntry, load_suite
+
+LEADERBOARD_SUITES = ("paper-v0", "core-v0", "robust-v0", "agile-v0")
+DEFAULT_ROOT = Path("leaderboards")
+RESULTS = "results.jsonl"
+TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
+TAUS = np.linspace(0.0, 1.0, 51)  # performance-profile thresholds
+MEANS = ("accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari", "us_per_pulse", "lag")
+MEDIANS = ("period_rel_error", "period_crlb_ratio")  # heavy-tailed: a lost track's error is huge
+
+
+def default_policies() -> list[str]:
+    """The reference policies: every policy registered by `baselines` (non-learned) plus `ppo`.
+    Adapters that need a model named to run (e.g. `tdc`) are left out."""
+    out = []
+    for info in list_policies():
+        factory = info.factory
+        module = factory.split(":")[0] if isinstance(factory, str) else factory.__module__
+        if module.split(".")[0] == "baselines" or info.name == "ppo":
+            out.append(info.name)
+    return out
+
+
+@dataclass(frozen=True)
+class Scope:
+    """The episodes a leaderboard scores: every test seed of every scenario of `suite`, or (for smoke
+    runs and tests) some scenarios and the first `max_seeds` test seeds of each."""
+
+    suite: str
+    scenarios: tuple[str, ...] | None = None
+    max_seeds: int | None = None
+
+    def __post_init__(self) -> None:
+        load_suite(self.suite)  # one line for an unknown suite
+        if self.max_seeds is not None and (not isinstance(self.max_seeds, int) or self.max_seeds < 1):
+            raise DeintError(f"max_seeds={self.max_seeds!r} is invalid: an integer >= 1")
+        if self.scenarios is not None:
+            if not self.scenarios:
+                raise DeintError("scenarios=() is invalid: name at least one scenario")
+            for name in self.scenarios:
+                load_suite(self.suite).entry(name)
+
+    def entries(self) -> list[SuiteEntry]:
+        suite = load_suite(self.suite)
+        if self.scenarios is None:
+            return list(suite)
+        wanted = set(self.scenarios)
+        return [e for e in suite if e.name in wanted]  # suite order
+
+    def seeds(self, entry: SuiteEntry) -> list[int]:
+        return list(entry.test)[: self.max_seeds]
+
+    def episodes(self) -> list[tuple[SuiteEntry, int]]:
+        return [(e, s) for e in self.entries() for s in self.seeds(e)]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"scenarios": list(self.scenarios) if self.scenarios is not None else None,
+                "max_seeds": self.max_seeds}
+
+    @classmethod
+    def of_folder(cls, folder: Path, suite: str) -> Scope:
+        """The scope an existing leaderboard folder was built with (the whole suite if none)."""
+        path = folder / "leaderboard.json"
+        if not path.exists():
+            return cls(suite)
+        try:
+            board = json.loads(path.read_text())
+            names, max_seeds, of = board["scope"]["scenarios"], board["scope"]["max_seeds"], board["suite"]
+        except (ValueError, KeyError, TypeError):
+            raise DeintError(f"{path}: is not a leaderboard file; remove it or regenerate the folder") from None
+        if of != suite:
+            raise DeintError(f"{path}: is the leaderboard of {of}, not {suite}")
+        return cls(suite, tuple(names) if names is not None else None, max_seeds)
+
+
+def workers_default() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def build(scope: Scope, policies: Iterable[str], *, workers: int | None = None, root: str | os.PathLike = DEFAULT_ROOT,
+          progress: bool = True, reps: int = 2000) -> tuple[Path, dict[str, Any]]:
+    """Play `policies` on the scope's test episodes (resuming `results.jsonl`), then write the folder.
+    Returns the folder and the leaderboard (as in leaderboard.json)."""
+    folder = Path(root) / scope.suite
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise DeintError(f"{folder}: cannot create the leaderboard folder ({e.strerror or e})") from None
+    policies = list(policies)
+    if policies:
+        targets = [scope.suite] if scope.scenarios is None else [f"{scope.suite}/{e.name}" for e in scope.entries()]
+        for target in targets:
+            evaluate(policies, target, split="test", max_seeds=scope.max_seeds, workers=workers or workers_default(),
+                     out=folder / RESULTS, progress=progress)
+    return folder, write(folder, scope, reps=reps)
+
+
+def write(folder: Path, scope: Scope, records: list[dict[str, Any]] | None = None, reps: int = 2000) -> dict[str, Any]:
+    """Aggregate `records` (default: the folder's results.jsonl) and write every file of the folder.
+
+    Everything is rendered in memory first; each file is then replaced atomically.
+    """
+    from deint_env.leaderboard import plots, render
+
+    records = read_records(folder / RESULTS) if records is None else records
+    board, profiles = aggregate(records, scope, reps=reps)
+    files = {RESULTS: results_text(records)}
+    files.update(render.render_all(board))
+    files.update(plots.render_all(board, profiles))
+    for stale in folder.glob("score_vs_*.png"):
+        if stale.name not in files:
+            stale.unlink()
+    for name, data in files.items():
+        render.write_file(folder / name, data)
+    return board
+
+
+def results_text(records: list[dict[str, Any]]) -> str:
+    """results.jsonl in canonical order (policy, scenario, seed): reruns leave it byte-identical."""
+    key = lambda r: (r["policy"], r["scenario"], r["seed"], r["scenario_hash"])  # noqa: E731
+    return "".join(json.dumps(r, sort_keys=True) + "\n" for r in sorted(records, key=key))
+
+
+# ---------------------------------------------------------------------------------------------------
+# aggregation
+# ---------------------------------------------------------------------------------------------------
+def plot_settings(entries: list[SuiteEntry]) -> dict[str, list[Any]]:
+    """The scenario settings worth a score-vs-setting plot: numbers with at least two values, and
+    labels with two to eight values; each with its sorted values."""
+    out: dict[str, list[Any]] = {}
+    for key in sorted({k for e in entries for k in e.settings}):
+        values = {e.settings[key] for e in entries if key in e.settings
+                  and isinstance(e.settings[key], (int, float, str)) and not isinstance(e.settings[key], bool)}
+        numeric = all(not isinstance(v, str) for v in values)
+        if len(values) >= 2 and (numeric or len(values) <= 8):
+            out[key] = sorted(values, key=lambda v: (isinstance(v, str), v))
+    return out
+
+
+def setting_group(key: str, value: Any) -> str:
+    return f"setting:{key}={json.dumps(value)}"
+
+
+def _groups(entries: list[SuiteEntry]) -> tuple[dict[str, list[str]], list[str]]:
+    """Bootstrap groups: "all", one per tag ("tag:jitter") and one per plotted setting value."""
+    tags = [t for t in TAGS if any(t in e.tags for e in entries)]
+    groups = {"all": [e.name for e in entries]}
+    groups.update({f"tag:{t}": [e.name for e in entries if t in e.tags] for t in tags})
+    for key, values in plot_settings(entries).items():
+        for v in values:
+            groups[setting_group(key, v)] = [e.name for e in entries if e.settings.get(key) == v]
+    return groups, tags
+
+
+def _kind(rec: dict[str, Any]) -> str:
+    return "submitted" if rec.get("submitted") else "oracle" if rec.get("oracle") else "policy"
+
+
+def _finite(values: Iterable[Any]) -> list[float]:
+    return [float(v) for v in values if v is not None and math.isfinite(v)]
+
+
+def aggregate(records: list[dict[str, Any]], scope: Scope, reps: int = 2000,
+              seed: int = 0) -> tuple[dict[str, Any], dict[str, tuple[np.ndarray, ...]]]:
+    """The leaderboard (JSON-ready, floats unrounded) and each entry's performance profile."""
+    from deint_env import __version__
+
+    suite = load_suite(scope.suite)
+    entries = scope.entries()
+    expected = {(e.name, e.spec.content_hash, s) for e, s in scope.episodes()}
+    by_policy: dict[str, dict[tuple, dict[str, Any]]] = {}
+    for r in records:
+        key = (r["scenario"], r["scenario_hash"], r["seed"])
+        if key in expected:
+            by_policy.setdefault(r["policy"], {})[key] = r
+    groups, tags = _groups(entries)
+    order = {e.name: i for i, e in enumerate(entries)}
+    rows, profiles, strata_of, incomplete = [], {}, {}, {}
+    for policy in sorted(by_policy):
+        got = by_policy[policy]
+        if len(got) < len(expected):
+            incomplete[policy] = len(got)
+            continue
+        recs = sorted(got.values(), key=lambda r: (order[r["scenario"]], r["seed"]))
+        played = [r for r in recs if r.get("applicable", True)]
+        strata: dict[str, list[float]] = {}
+        for r in played:
+            if r.get("score") is not None:
+                strata.setdefault(r["scenario"], []).append(r["score"])
+        strata_of[policy] = strata
+        est, profiles[policy] = stats.estimates(strata, groups, TAUS, reps=reps, seed=seed)
+        row: dict[str, Any] = {
+            "policy": policy, "kind": _kind(recs[0]), "oracle": bool(recs[0].get("oracle")),
+            "submitted": bool(recs[0].get("submitted")), "episodes": len(recs), "played": len(played),
+            "scored": sum(map(len, strata.values())), "coverage": len(played) / len(recs),
+            "version": ",".join(sorted({str(r.get("version")) for r in recs})),
+        }
+        for name in ("iqm", "mean"):
+            row[f"score_{name}"], row[f"score_{name}_low"], row[f"score_{name}_high"] = est["all"][name]
+        for key in MEANS + MEDIANS:
+            vals = _finite(r.get(key) for r in played)
+            row[key] = (float(np.median(vals)) if key in MEDIANS else float(np.mean(vals))) if vals else None
+        row["tags"] = {t: _flat(est[f"tag:{t}"], sum(len(strata.get(s, ())) for s in groups[f"tag:{t}"]))
+                       for t in tags}
+        row["by_setting"] = {key: [{"value": v, **_flat(est[setting_group(key, v)])} for v in values]
+                             for key, values in plot_settings(entries).items()}
+        rows.append(row)
+    _rank(rows)
+    board = {
+        "format": "deint-leaderboard", "format_version": 1,
+        "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.content_hash,
+        "package_version": __version__, "rliable_version": stats.rliable_version(),
+        "scope": scope.to_json(), "scenarios": len(entries), "episodes": len(expected), "tags": tags,
+        "bootstrap": {"reps": reps, "seed": seed, "confidence": stats.CONFIDENCE, "strata": "scenarios",
+                      "interval": "percentile"},
+        "rows": rows, "probability_of_improvement": _improvements(rows, strata_of, reps, seed),
+        "incomplete": incomplete,
+    }
+    return json_ready(board), profiles
+
+
+def _flat(est: dict[str, tuple[float, float, float]], scored: int | None = None) -> dict[str, Any]:
+    out = {}
+    for name, (p, lo, hi) in est.items():
+        out[name], out[f"{name}_low"], out[f"{name}_high"] = p, lo, hi
+    if scored is not None:
+        out["scored"] = scored
+    return out
+
+
+def _rank(rows: list[dict[str, Any]]) -> None:
+    """Sort by score IQM (best first, no score last); number the non-oracle entries."""
+    def key(r):
+        v = r["score_iqm"]
+        return (0, -v, r["policy"]) if v is not None and math.isfinite(v) else (1, 0.0, r["policy"])
+
+    rows.sort(key=key)
+    rank = 0
+    for r in rows:
+        ranked = not r["oracle"] and r["score_iqm"] is not None and math.isfinite(r["score_iqm"])
+        rank += ranked
+        r["rank"] = rank if ranked else None
+
+
+def _improvements(rows: list[dict[str, Any]], strata_of: dict[str, dict[str, list[float]]], reps: int,
+                  seed: int) -> list[dict[str, Any]]:
+    top = [r["policy"] for r in rows if r["rank"] is not None][:TOP_IMPROVEMENT]
+    out = []
+    for i, x in enumerate(top):
+        for y in top[i + 1:]:
+            p, lo, hi, n = stats.probability_of_improvement(strata_of[x], strata_of[y], reps=reps, seed=seed)
+            out.append({"x": x, "y": y, "p": p, "low": lo, "high": hi, "scenarios": n})
+    return out

@@ -1,0 +1,300 @@
+"""The leaderboard as files: leaderboard.json, leaderboard.csv, README.md (GitHub) and index.html.
+
+Floats are rounded to 6 significant digits and keys sorted, and nothing depends on the clock: only
+the measured `us_per_pulse` can change between two builds from the same results.  index.html is one
+self-contained page (inline CSS and a few lines of JavaScript: click a column header to sort, tabs
+for the per-tag scores) that works opened from the file system.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import html
+import io
+import json
+import math
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from deint_env.errors import DeintError
+
+PLOTS_DOC = {
+    "intervals.png": "interval estimates: score IQM and mean per entry with 95 % stratified-bootstrap intervals",
+    "profiles.png": "performance profiles: the share of test episodes scoring above tau, with 95 % bands",
+}
+
+
+def write_file(path: Path, data: str | bytes) -> None:
+    """Write `data` to a temporary file beside `path`, then rename it over `path`."""
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        with os.fdopen(fd, "wb") as f:
+            f.write(raw)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except OSError as e:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
+
+
+def tidy(x: Any) -> Any:
+    """Floats rounded to 6 significant digits (NaN -> None), recursively."""
+    if isinstance(x, dict):
+        return {k: tidy(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [tidy(v) for v in x]
+    if isinstance(x, float):
+        return float(f"{x:.6g}") if math.isfinite(x) else None
+    return x
+
+
+def render_all(board: dict[str, Any]) -> dict[str, str]:
+    board = tidy(board)
+    return {"leaderboard.json": json.dumps(board, indent=1, sort_keys=True, allow_nan=False) + "\n",
+            "leaderboard.csv": render_csv(board), "README.md": render_readme(board),
+            "index.html": render_html(board)}
+
+
+# ---------------------------------------------------------------------------------------------------
+# cells
+# ---------------------------------------------------------------------------------------------------
+def num(v: Any, spec: str = ".3f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def interval(d: dict[str, Any], name: str) -> str:
+    if d.get(name) is None:
+        return "-"
+    return f"{num(d[name])} [{num(d[name + '_low'])}, {num(d[name + '_high'])}]"
+
+
+def display_name(row: dict[str, Any]) -> str:
+    return row["policy"] + (" (oracle)" if row["oracle"] else "")
+
+
+# One column of the main table: header, row -> cell text, row -> sort value (None = missing).
+COLUMNS: list[tuple[str, Any, Any]] = [
+    ("rank", lambda r: num(r["rank"], "d"), lambda r: r["rank"]),
+    ("policy", display_name, lambda r: r["policy"]),
+    ("score IQM [95% CI]", lambda r: interval(r, "score_iqm"), lambda r: r["score_iqm"]),
+    ("score mean [95% CI]", lambda r: interval(r, "score_mean"), lambda r: r["score_mean"]),
+    ("accuracy", lambda r: num(r["accuracy"]), lambda r: r["accuracy"]),
+    ("mean P_e", lambda r: num(r["mean_pe"]), lambda r: r["mean_pe"]),
+    ("V-measure", lambda r: num(r["v_measure"]), lambda r: r["v_measure"]),
+    ("ARI", lambda r: num(r["ari"]), lambda r: r["ari"]),
+    ("period rel. error", lambda r: num(r["period_rel_error"], ".2e"), lambda r: r["period_rel_error"]),
+    ("period error / CRLB", lambda r: num(r["period_crlb_ratio"], ".3g"), lambda r: r["period_crlb_ratio"]),
+    ("us/pulse", lambda r: num(r["us_per_pulse"], ".1f"), lambda r: r["us_per_pulse"]),
+    ("lag", lambda r: num(r["lag"], ".0f"), lambda r: r["lag"]),
+    ("coverage", lambda r: f"{r['coverage']:.0%}", lambda r: r["coverage"]),
+]
+
+CSV_FIELDS = ["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean",
+              "score_mean_low", "score_mean_high", "accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari",
+              "period_rel_error", "period_crlb_ratio", "us_per_pulse", "lag", "coverage", "played", "scored",
+              "episodes", "oracle", "submitted", "version"]
+TAG_FIELDS = ["iqm", "iqm_low", "iqm_high", "mean", "mean_low", "mean_high", "scored"]
+
+
+def render_csv(board: dict[str, Any]) -> str:
+    head = CSV_FIELDS + ["suite", "suite_version", "suite_hash"]
+    head += [f"tag_{t}_{f}" for t in board["tags"] for f in TAG_FIELDS]
+    out = io.StringIO()
+    w = csv.writer(out, lineterminator="\n")
+    w.writerow(head)
+    for r in board["rows"]:
+        cells = [r[k] for k in CSV_FIELDS] + [board["suite"], board["suite_version"], board["suite_hash"]]
+        cells += [r["tags"][t][f] for t in board["tags"] for f in TAG_FIELDS]
+        w.writerow(["" if c is None else str(c).lower() if isinstance(c, bool) else c for c in cells])
+    return out.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------------
+# README.md
+# ---------------------------------------------------------------------------------------------------
+def _md_table(head: list[str], body: list[list[str]]) -> list[str]:
+    esc = lambda s: s.replace("|", "\\|")  # noqa: E731
+    return ["| " + " | ".join(map(esc, head)) + " |", "|" + "---|" * len(head)] + [
+        "| " + " | ".join(map(esc, row)) + " |" for row in body]
+
+
+def _scope_text(b: dict[str, Any]) -> str:
+    scope = b["scope"]
+    if scope["scenarios"] is None and scope["max_seeds"] is None:
+        return f"every test seed of its {b['scenarios']} scenarios"
+    which = "all" if scope["scenarios"] is None else ", ".join(scope["scenarios"])
+    seeds = "every test seed" if scope["max_seeds"] is None else f"the first {scope['max_seeds']} test seeds"
+    return f"a partial run ({seeds} of {b['scenarios']} scenarios: {which}), not the published scope"
+
+
+def plot_files(board: dict[str, Any]) -> dict[str, str]:
+    """Every plot of the folder and what it shows."""
+    if not any(r["score_iqm"] is not None for r in board["rows"]):
+        return {}
+    out = dict(PLOTS_DOC)
+    for key in board["rows"][0]["by_setting"]:
+        out[f"score_vs_{key}.png"] = f"mean score against the scenario setting {key}, with 95 % intervals"
+    return out
+
+
+def _improvement_body(b: dict[str, Any]) -> list[list[str]]:
+    return [[p["x"], p["y"], f"{num(p['p'])} [{num(p['low'])}, {num(p['high'])}]", str(p["scenarios"])]
+            for p in b["probability_of_improvement"]]
+
+
+def explanation(b: dict[str, Any]) -> list[str]:
+    reps = b["bootstrap"]["reps"]
+    return [
+        "**Score.** Each test episode's label accuracy a (the environment's reward rule: the right source "
+        "label, or the right link to the predecessor in blind scenarios) is normalised between a floor and a "
+        "ceiling measured on that same episode: score = (a - a_random) / (a_genie - a_random), where `random` "
+        "labels uniformly at random (seeded by the episode) and `genie` is the oracle that labels from the "
+        "true parameters. 0 is chance, 1 is the oracle (a policy can beat it on an episode by luck).",
+        "",
+        "**Method.** Every policy plays every test episode through the environment, seeing only the "
+        "observations and the public priors. Over the episodes we report the interquartile mean (IQM: the "
+        "mean of the middle 50 % of scores, robust to a few failed episodes; the ranking uses it) and the "
+        f"mean, each with a 95 % stratified-bootstrap percentile interval ({reps} replicates, scenarios as "
+        "strata, seeded so that reruns reproduce the numbers), computed with "
+        f"[rliable](https://github.com/google-research/rliable) {b['rliable_version']} (Agarwal et al., "
+        "\"Deep RL at the edge of the statistical precipice\", NeurIPS 2021). P(X > Y) is rliable's "
+        "probability of improvement: the chance that X outscores Y on a random test episode of a scenario, "
+        "averaged over scenarios. Coverage is the share of episodes a policy can play (a prior-based policy "
+        "cannot play a blind scenario, say): its scores are over those only. Oracles see the truth; they are "
+        "ceilings, not methods, and get no rank. The period errors are medians over episodes of the final "
+        "period estimates' mean relative error and of their RMS error over the Cramer-Rao bound (1 = "
+        "efficient), for policies that report estimates. us/pulse is the policy's own compute time "
+        "(measured on the machine that ran it: it varies between runs and machines).",
+    ]
+
+
+def render_readme(b: dict[str, Any]) -> str:
+    title = f"# Leaderboard: {b['suite']}"
+    lines = [title, "",
+             f"Suite `{b['suite']}` version {b['suite_version']} (content hash `{b['suite_hash']}`), "
+             f"{b['episodes']} test episodes per entry: {_scope_text(b)}. deint-bench {b['package_version']}. "
+             "Generated by `deint leaderboard`; the same numbers are in [leaderboard.json](leaderboard.json) "
+             "and [leaderboard.csv](leaderboard.csv), the episodes in [results.jsonl](results.jsonl), and a "
+             "sortable page in [index.html](index.html).", ""]
+    lines += _md_table([c[0] for c in COLUMNS], [[c[1](r) for c in COLUMNS] for r in b["rows"]])
+    if b["incomplete"]:
+        lines += ["", "Not shown, incomplete (rerun `deint leaderboard` to finish): "
+                  + ", ".join(f"{p} ({n} of {b['episodes']} episodes)" for p, n in sorted(b["incomplete"].items()))]
+    if b["tags"]:
+        lines += ["", "## Scores per tag", "", "Score IQM [95 % CI] over the scenarios carrying each tag.", ""]
+        lines += _md_table(["policy"] + b["tags"],
+                           [[display_name(r)] + [interval(r["tags"][t], "iqm") for t in b["tags"]] for r in b["rows"]])
+    if b["probability_of_improvement"]:
+        lines += ["", "## Probability of improvement", "", "Between the top-ranked entries:", ""]
+        lines += _md_table(["X", "Y", "P(X > Y) [95% CI]", "scenarios"], _improvement_body(b))
+    lines += ["", "## How to read it", ""] + explanation(b)
+    plots = plot_files(b)
+    if plots:
+        lines += ["", "## Plots", ""]
+        for name, what in plots.items():
+            lines += [f"[{name}]({name}): {what}.", "", f"![{what}]({name})", ""]
+        lines.pop()
+    lines += ["", "## Submitting", "",
+              "Labels from outside (any method, any language) are scored the same way: see the submission "
+              "format in the [project README](../../README.md#leaderboards) and run "
+              f"`deint leaderboard submit FILE --suite {b['suite']} --name NAME`."]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------------
+# index.html
+# ---------------------------------------------------------------------------------------------------
+STYLE = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:84em;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:1em 0}
+th,td{padding:.3em .6em;white-space:nowrap;border-bottom:1px solid #ddd;text-align:right}
+td.t{text-align:left}th{cursor:pointer;background:#f4f4f4;user-select:none}
+th[aria-sort=ascending]::after{content:" \\25B2"}th[aria-sort=descending]::after{content:" \\25BC"}
+.tabs button{font:inherit;padding:.3em .8em;border:1px solid #bbb;background:#f8f8f8;cursor:pointer}
+.tabs button.on{background:#333;color:#fff}img{max-width:100%;display:block;margin:1em 0}"""
+
+# Click a header: sort its table's rows by that column (ascending, then descending); a cell's data-v
+# holds its sort value, numbers compare as numbers, an empty value always sorts last.
+SCRIPT = """document.querySelectorAll("table.sortable th").forEach((th, i) => th.addEventListener("click", () => {
+  const body = th.closest("table").tBodies[0], up = th.getAttribute("aria-sort") !== "ascending";
+  th.closest("tr").querySelectorAll("th").forEach(h => h.removeAttribute("aria-sort"));
+  th.setAttribute("aria-sort", up ? "ascending" : "descending");
+  const v = r => r.cells[i].dataset.v, cmp = (a, b) => isNaN(a) || isNaN(b) ? a.localeCompare(b) : a - b;
+  [...body.rows].sort((a, b) => v(a) === "" ? 1 : v(b) === "" ? -1 : (up ? 1 : -1) * cmp(v(a), v(b)))
+    .forEach(r => body.appendChild(r));
+}));
+document.querySelectorAll(".tabs button").forEach(b => b.addEventListener("click", () => {
+  document.querySelectorAll(".tab").forEach(s => s.hidden = s.id !== b.dataset.tab);
+  document.querySelectorAll(".tabs button").forEach(x => x.classList.toggle("on", x === b));
+}));"""
+
+
+def _html_table(table_id: str, head: list[str], rows: list[list[tuple[str, Any]]]) -> str:
+    """A sortable table; each cell is (text, sort value)."""
+    def cell(text: str, value: Any) -> str:
+        if isinstance(value, str):
+            return f'<td class="t" data-v="{html.escape(value)}">{html.escape(text)}</td>'
+        return f'<td data-v="{"" if value is None else repr(value)}">{html.escape(text)}</td>'
+
+    out = [f'<table class="sortable" id="{table_id}"><thead><tr>'
+           + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr></thead><tbody>"]
+    out += ["<tr>" + "".join(cell(t, v) for t, v in row) + "</tr>" for row in rows]
+    return "\n".join(out) + "\n</tbody></table>"
+
+
+def _md_inline(text: str) -> str:
+    """The markdown of `explanation` (bold, code, links) as HTML."""
+    text = html.escape(text, quote=False)
+    text = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", text)
+    text = re.sub(r"`(.+?)`", r"<code>\1</code>", text)
+    return re.sub(r"\[(.+?)\]\((.+?)\)", r'<a href="\2">\1</a>', text)
+
+
+def render_html(b: dict[str, Any]) -> str:
+    e = html.escape
+    tabs = [("tab-all", "all scenarios")] + [(f"tab-tag-{t}", t) for t in b["tags"]]
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             f"<title>deint-bench leaderboard: {e(b['suite'])}</title>", f"<style>{STYLE}</style></head><body>",
+             f"<h1>Leaderboard: {e(b['suite'])}</h1>",
+             f"<p>Suite <code>{e(b['suite'])}</code> version {b['suite_version']} (content hash "
+             f"<code>{e(b['suite_hash'])}</code>), {b['episodes']} test episodes per entry: {e(_scope_text(b))}. "
+             f"deint-bench {e(b['package_version'])}. Click a column header to sort.</p>",
+             '<nav class="tabs">' + "".join(
+                 f'<button data-tab="{tid}"{" class=on" if k == 0 else ""}>{e(name)}</button>'
+                 for k, (tid, name) in enumerate(tabs)) + "</nav>",
+             '<section class="tab" id="tab-all">',
+             _html_table("board", [c[0] for c in COLUMNS], [[(c[1](r), c[2](r)) for c in COLUMNS] for r in b["rows"]]),
+             "</section>"]
+    for t in b["tags"]:
+        rows = []
+        for r in b["rows"]:
+            d = r["tags"][t]
+            rows.append([(display_name(r), r["policy"]), (interval(d, "iqm"), d["iqm"]),
+                         (interval(d, "mean"), d["mean"]), (str(d["scored"]), d["scored"])])
+        parts += [f'<section class="tab" id="tab-tag-{e(t)}" hidden>',
+                  f"<p>Scores over the scenarios tagged <code>{e(t)}</code>.</p>",
+                  _html_table(f"tag-{e(t)}", ["policy", "score IQM [95% CI]", "score mean [95% CI]", "episodes"],
+                              rows), "</section>"]
+    if b["incomplete"]:
+        parts.append("<p>Not shown, incomplete: " + e(", ".join(
+            f"{p} ({n} of {b['episodes']} episodes)" for p, n in sorted(b["incomplete"].items()))) + "</p>")
+    if b["probability_of_improvement"]:
+        rows = [[(x, x), (y, y), (ci, p["p"]), (n, p["scenarios"])]
+                for (x, y, ci, n), p in zip(_improvement_body(b), b["probability_of_improvement"])]
+        parts += ["<h2>Probability of improvement</h2>", "<p>Between the top-ranked entries.</p>",
+                  _html_table("improvement", ["X", "Y", "P(X > Y) [95% CI]", "scenarios"], rows)]
+    parts += ["<h2>How to read it</h2>"] + [f"<p>{_md_inline(p)}</p>" for p in explanation(b) if p]
+    plots = plot_files(b)
+    if plots:
+        parts.append("<h2>Plots</h2>")
+        parts += [f'<figure><img src="{e(name)}" alt="{e(what)}"><figcaption>{e(what)}</figcaption></figure>'
+                  for name, what in plots.items()]
+    parts += [f"<script>\n{SCRIPT}\n</script>", "</body></html>"]
+    return "\n".join(parts) + "\n"

@@ -600,6 +600,9 @@ def _add_leaderboard(sub) -> None:
     p.add_argument("--scenarios", metavar="A,B,...", help="only these scenarios: a smoke run, not a full leaderboard")
     p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K test seeds: a smoke run")
     p.add_argument("--reps", type=int, default=2000, metavar="R", help="bootstrap replicates (default 2000)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where episodes run: the local process pool (default) or a Ray cluster")
+    p.add_argument("--address", help="the Ray cluster to join (with --executor ray; default: a private one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_leaderboard)
     actions = p.add_subparsers(dest="action", metavar="ACTION")
@@ -674,7 +677,7 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     scopes = [Scope(s) for s in LEADERBOARD_SUITES] if args.all else [_scope(args.suite, args)]
     for scope in scopes:
         folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
-                              reps=args.reps)
+                              reps=args.reps, executor=args.executor, address=args.address)
         _leaderboard_report(board, folder)
     return 0
 

@@ -101,8 +101,10 @@ def workers_default() -> int:
 
 
 def build(scope: Scope, policies: Iterable[str], *, workers: int | None = None, root: str | os.PathLike = DEFAULT_ROOT,
-          progress: bool = True, reps: int = 2000) -> tuple[Path, dict[str, Any]]:
-    """Play `policies` on the scope's test episodes (resuming `results.jsonl`), then write the folder.
+          progress: bool = True, reps: int = 2000, executor: str = "local",
+          address: str | None = None) -> tuple[Path, dict[str, Any]]:
+    """Play `policies` on the scope's test episodes (resuming `results.jsonl`) on the local process
+    pool or a Ray cluster (`executor`, `address`: see `runner.evaluate`), then write the folder.
     Returns the folder and the leaderboard (as in leaderboard.json)."""
     folder = Path(root) / scope.suite
     try:
@@ -114,7 +116,7 @@ def build(scope: Scope, policies: Iterable[str], *, workers: int | None = None, 
         targets = [scope.suite] if scope.scenarios is None else [f"{scope.suite}/{e.name}" for e in scope.entries()]
         for target in targets:
             evaluate(policies, target, split="test", max_seeds=scope.max_seeds, workers=workers or workers_default(),
-                     out=folder / RESULTS, progress=progress)
+                     out=folder / RESULTS, progress=progress, executor=executor, address=address)
     return folder, write(folder, scope, reps=reps)
 
 

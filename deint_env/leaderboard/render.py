@@ -157,7 +157,10 @@ def explanation(b: dict[str, Any]) -> list[str]:
         "label, or the right link to the predecessor in blind scenarios) is normalised between a floor and a "
         "ceiling measured on that same episode: score = (a - a_random) / (a_genie - a_random), where `random` "
         "labels uniformly at random (seeded by the episode) and `genie` is the oracle that labels from the "
-        "true parameters. 0 is chance, 1 is the oracle (a policy can beat it on an episode by luck).",
+        "true parameters (the order-preserving MAP alignment of the received pulses to the true emission "
+        "schedule). 0 is chance, 1 is the oracle. A policy can beat it on an episode by luck, and where the "
+        "TOA jitter is comparable to the spacing of pulses (so the received order is not the emission order) "
+        "genie is no longer a ceiling: scores above 1 there mean a policy did better than it.",
         "",
         "**Method.** Every policy plays every test episode through the environment, seeing only the "
         "observations and the public priors. Over the episodes we report the interquartile mean (IQM: the "

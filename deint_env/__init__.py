@@ -11,7 +11,7 @@ from deint_env.errors import DeintError
 from deint_env.policies import Policy, list_policies, make_policy, register_policy
 from deint_env.registration import env_ids, register_envs
 from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
-from deint_env.simulate import simulate
+from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import list_suites, load_suite, resolve_scenario
 
 try:
@@ -24,5 +24,5 @@ register_envs()
 __all__ = [
     "DeintError", "Episode", "Modulation", "Policy", "PriorSpec", "Priors", "Range", "ScenarioSpec", "SourceSpec",
     "Truth", "env_ids", "list_policies", "list_suites", "load_suite", "make_policy", "register_policy",
-    "resolve_scenario", "simulate", "__version__",
+    "resolve_scenario", "simulate", "simulate_many", "__version__",
 ]

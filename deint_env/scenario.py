@@ -319,8 +319,15 @@ class ScenarioSpec:
         min_period = min(_param_low(s.period) * s.modulation.min_ratio() for s in srcs)
         check(self.pri_jitter_std <= min_period / 3, "pri_jitter_std", self.pri_jitter_std,
               f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")
-        check(self.coincidence_resolution < min_period / 2, "coincidence_resolution", self.coincidence_resolution,
-              f"below half the smallest PRI ({min_period:g}), or a source would merge with itself")
+        # a drifting period shrinks as alpha^n (<= 100-fold, below) and random-walks: allow 6 sigma of
+        # the walk, down to the generator's clip at 5 % of the period
+        shrunk = min([max(0.05, min(1.0, s.modulation.alpha ** self.n_pulses)) * _param_low(s.period)
+                      - 6 * s.modulation.drift_std * math.sqrt(self.n_pulses)
+                      for s in srcs if s.modulation.kind == "drifting"] + [min_period])
+        shrunk = max(shrunk, 0.05 * min(_param_low(s.period) for s in srcs))
+        check(self.coincidence_resolution < min(min_period, shrunk) / 2, "coincidence_resolution",
+              self.coincidence_resolution, f"below half the smallest PRI ({min(min_period, shrunk):g}), or a "
+              "source would merge with itself")
         for s in srcs:  # alpha^n over a source's <= n_pulses pulses: keep the period within 100x
             if s.modulation.kind == "drifting":
                 check(abs(math.log(s.modulation.alpha)) * self.n_pulses <= math.log(100.0), "modulation.alpha",

@@ -299,3 +299,17 @@ def test_replace_revalidates():
     assert s.replace(n_pulses=20).n_pulses == 20
     with pytest.raises(DeintError, match="n_pulses"):
         s.replace(n_pulses=-3)
+
+
+def test_resolution_checked_against_a_drifting_period():
+    """A drifting PRI that can shrink below the resolution would merge a source with itself."""
+    walk = Modulation("drifting", alpha=1.0, drift_std=0.5)  # 6 sigma of a 400-pulse walk: 60 > the period
+    with pytest.raises(DeintError, match="coincidence_resolution"):
+        ScenarioSpec(name="d", sources=(SourceSpec(period=10.0, modulation=walk),), n_pulses=400,
+                     coincidence_resolution=1.0)
+    shrink = Modulation("drifting", alpha=0.995)  # 0.995^400 = 0.13: the period ends near 1.3
+    with pytest.raises(DeintError, match="coincidence_resolution"):
+        ScenarioSpec(name="d", sources=(SourceSpec(period=10.0, modulation=shrink),), n_pulses=400,
+                     coincidence_resolution=1.0)
+    ScenarioSpec(name="d", sources=(SourceSpec(period=10.0, modulation=shrink),), n_pulses=400,
+                 coincidence_resolution=0.5)

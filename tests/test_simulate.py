@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from deint_env import simulate
 from deint_env.errors import DeintError
+from deint_env.simulate import simulate_many, stream, streams
 from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
 from deint_env.suites import resolve_scenario
 
@@ -512,3 +513,58 @@ def test_drifting_alpha_top_of_range():
         return
     ep = simulate(s, 0)
     assert len(ep) == 1000 and np.all(np.isfinite(ep.toa))
+
+
+# ---- simulate_many: the batch path, episode for episode the same as simulate ---------------------------
+MANY = {
+    "rich": RICH,  # amplitudes, merges, spurious, missing, cumulative jitter, sinusoidal, drifting, window
+    "core": resolve_scenario("core-v0/core-n3-spread4-jitter0.2").replace(n_pulses=300),
+    "many-sources": resolve_scenario("core-v0/core-n8-spread16-jitter0.2").replace(n_pulses=300),
+    "blind-n-active": resolve_scenario("blind-v0/blind-n2to5-jitter0.5").replace(n_pulses=200),
+    "merged": resolve_scenario("robust-v0/robust-combined").replace(n_pulses=300),
+    "dropout-retry": resolve_scenario("robust-v0/robust-dropout").replace(n_pulses=300),  # horizons redone
+    "agile": resolve_scenario("agile-v0/agile-all-stagger").replace(n_pulses=300),
+    "ties": ScenarioSpec(name="ties", n_pulses=300,
+                         sources=tuple(SourceSpec(period=t, phase=0.0) for t in (10.0, 15.0, 6.0, 12.0))),
+    "phantom-amplitudes": ScenarioSpec(
+        name="phantom", n_pulses=200, toa_jitter_std=1.0, amplitudes=True, amplitude_noise_std=0.1,
+        sources=(SourceSpec(period=11.0, phase=3.0, amplitude=2.0, amplitude_std=0.3),
+                 SourceSpec(period=Range(15.0, 20.0), amplitude=Range(0.5, 1.5), active=((0.2, 0.5), (0.6, 2.0)))),
+        priors=PriorSpec(kind="explicit", period=(10.0, 18.0, 30.0), phase=(2.0, 4.0, 5.0), period_std=(1.0,),
+                         phase_std=(1.0,))),
+}
+
+
+@pytest.mark.parametrize("name", list(MANY))
+def test_simulate_many_equals_simulate(name):
+    spec = MANY[name]
+    seeds = [0, 1, 2**32 - 1, 2**32, 2**63 - 1] + list(range(1000, 1035))  # >= 32: the batch seeding
+    many = simulate_many(spec, seeds)
+    assert [e.seed for e in many] == seeds
+    for seed, ep in zip(seeds, many):
+        assert_same_episode(ep, simulate(spec, seed))
+
+
+def test_simulate_many_splits_large_batches():
+    spec = resolve_scenario("core-v0/core-n2-spread4-jitter0.2").replace(n_pulses=20_000)  # 13 episodes a batch
+    seeds = list(range(30))
+    for seed, ep in zip(seeds, simulate_many(spec, seeds)):
+        assert_same_episode(ep, simulate(spec, seed))
+
+
+def test_simulate_many_edge_cases():
+    assert simulate_many(RICH, []) == []
+    with pytest.raises(DeintError, match="seed"):
+        simulate_many(RICH, [1, -1])
+    a, b = simulate_many(RICH, [3, 4])
+    a.toa[:] = 0.0  # episodes of one batch share no writable data
+    assert_same_episode(b, simulate(RICH, 4))
+
+
+def test_streams_match_stream():
+    seeds = [0, 1, 2**32 - 1, 2**32, 2**63 - 1] + list(np.random.default_rng(0).integers(0, 2**63 - 1, 60).tolist())
+    for role, index in ((0, 0), (2, 0), (8, 5), (7, 63)):
+        for seed, rng in zip(seeds, streams(seeds, role, index)):
+            ref = stream(seed, role, index)
+            assert rng.bit_generator.state == ref.bit_generator.state
+            assert np.array_equal(rng.standard_normal(5), ref.standard_normal(5))

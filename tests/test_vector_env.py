@@ -163,10 +163,59 @@ def test_episodes_of_varying_length(monkeypatch, name):
     def varying(spec, seed):
         return real(spec.replace(n_pulses=20 + seed % 60), seed)
 
-    monkeypatch.setattr(vector_module, "simulate", varying)
+    monkeypatch.setattr(vector_module, "simulate_many", lambda spec, seeds: [varying(spec, s) for s in seeds])
     monkeypatch.setattr(single_module, "simulate", varying)
     spec = _small(name).replace(coincidence_resolution=2.0, spurious_rate=0.1)
     _compare(spec, lag=2, n_steps=260, seed=37, min_boundaries=2)
+
+
+def test_episodes_starting_together_are_simulated_together(monkeypatch):
+    calls = []
+    real = vector_module.simulate_many
+
+    def counting(spec, seeds):
+        calls.append(list(seeds))
+        return real(spec, seeds)
+
+    monkeypatch.setattr(vector_module, "simulate_many", counting)
+    spec = _small("core-v0/core-n3-spread4-jitter0.2")
+    env = DeinterleaveVectorEnv(N_ENVS, scenario=spec)
+    env.reset(seed=3)
+    assert calls == [[3, 4, 5, 6]]
+    for _ in range(spec.n_pulses + 1):  # all sub-envs end on the same step and restart on the next
+        env.step(np.zeros(N_ENVS, np.int64))
+    assert len(calls) == 2 and len(calls[1]) == N_ENVS
+    assert [ep.seed for ep in env.episodes] == calls[1]
+
+
+def test_batched_infos_match_gymnasium_add_info():
+    """`_add_infos` (many sub-envs at once) builds what Gymnasium's `_add_info` builds env by env."""
+    env = DeinterleaveVectorEnv(5, scenario=_amplitude_spec())
+    rows = [1, 3, 4]
+    episodes = [simulate(env.spec_scenario, s) for s in (7, 8, 9)]
+    infos = [{"priors": ep.priors.as_info(), "n_pulses": len(ep), "lag": 0, "has_amplitude": True,
+              "scenario": ep.scenario} for ep in episodes]
+    expected: dict = {"episode_accuracy": np.zeros(5)}  # an info key already present is kept
+    actual: dict = {"episode_accuracy": np.zeros(5)}
+    for i, info in zip(rows, infos):
+        env._add_info(expected, info, i)
+
+    def columns(dicts: list[dict]) -> dict:  # {key: [each sub-env's value]}, nested dicts alike
+        return {k: columns([d[k] for d in dicts]) if isinstance(v, dict) else [d[k] for d in dicts]
+                for k, v in dicts[0].items()}
+
+    env._add_infos(actual, columns(infos), rows)
+
+    def check(a: dict, b: dict) -> None:
+        assert list(a) == list(b)
+        for k in a:
+            if isinstance(a[k], dict):
+                check(a[k], b[k])
+            else:
+                assert a[k].dtype == b[k].dtype and a[k].shape == b[k].shape, k
+                assert all(np.array_equal(x, y) for x, y in zip(a[k], b[k])), k
+
+    check(actual, expected)
 
 
 def test_make_vec():

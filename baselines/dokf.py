@@ -25,8 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-# DM89 section 4: the fourth-order ARMA channel V(z) = B(z^-1) / A(z^-1).
-DM89_CHANNEL = ((0.91003, -2.4203, 2.3408, -0.82997), (1.0, -3.3198, 4.5146, -2.9511, 0.79699))
+from deint_env.scenario import DM89_CHANNEL  # noqa: F401  (DM89 section 4's ARMA channel; re-exported)
 
 
 class StateSpace(NamedTuple):

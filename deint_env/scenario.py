@@ -208,6 +208,51 @@ class SourceSpec:
         object.__setattr__(self, "active", tuple(windows))
 
 
+# DM89 section 4's fourth-order ARMA channel V(z) = B(z^-1) / A(z^-1), the front end's default.
+DM89_CHANNEL = ((0.91003, -2.4203, 2.3408, -0.82997), (1.0, -3.3198, 4.5146, -2.9511, 0.79699))
+
+
+@dataclass(frozen=True)
+class WaveformSpec:
+    """An optional waveform front end (DESIGN section 8, DM89): the received pulses become spikes on a
+    grid of `sample_period` (a pulse's amplitude is its spike's height; 1 without amplitudes), pass
+    through the channel V(z) = numerator / denominator (default: DM89's fourth-order ARMA), get white
+    noise of std `noise_std`, and are detected online by Dai & Mendel's detection-oriented Kalman
+    filter.  The episode holds the detections: misses and false alarms come from detection.  The
+    detector's spike probability per sample and spike spread default to the expected pulses per
+    sample and the rms pulse amplitude (`spike_prob`, `spike_std` override them).
+    """
+
+    sample_period: float
+    numerator: tuple[float, ...] = DM89_CHANNEL[0]
+    denominator: tuple[float, ...] = DM89_CHANNEL[1]
+    noise_std: float = 0.03
+    spike_prob: float | None = None
+    spike_std: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sample_period", _number(self.sample_period, "waveform.sample_period", 0.0))
+        check(self.sample_period > 0, "waveform.sample_period", self.sample_period, "must be > 0")
+        for name in ("numerator", "denominator"):
+            object.__setattr__(self, name, _floats(getattr(self, name), f"waveform.{name}"))
+        check(len(self.numerator) >= 1 and any(self.numerator), "waveform.numerator", self.numerator,
+              "at least one nonzero coefficient")
+        check(len(self.denominator) >= 1 and self.denominator[0] != 0, "waveform.denominator", self.denominator,
+              "a leading coefficient != 0")
+        object.__setattr__(self, "noise_std", _number(self.noise_std, "waveform.noise_std", 0.0))
+        check(self.noise_std > 0, "waveform.noise_std", self.noise_std, "must be > 0 (the detector needs noise)")
+        if self.spike_prob is not None:
+            object.__setattr__(self, "spike_prob", _number(self.spike_prob, "waveform.spike_prob", 0.0, 1.0))
+            check(0 < self.spike_prob < 1, "waveform.spike_prob", self.spike_prob, "0 < spike_prob < 1")
+        if self.spike_std is not None:
+            object.__setattr__(self, "spike_std", _number(self.spike_std, "waveform.spike_std", 0.0))
+            check(self.spike_std > 0, "waveform.spike_std", self.spike_std, "must be > 0")
+
+    @property
+    def channel(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        return self.numerator, self.denominator
+
+
 PRIOR_KINDS = ("explicit", "perturbed", "none")
 
 
@@ -277,6 +322,8 @@ class ScenarioSpec:
     is its measurement noise.  priors: see PriorSpec.  blind: unknown number of sources and no priors;
     the action then names one of `label_budget` labels and is rewarded per link.  n_active: in blind
     mode, the number of sources (the first k of `sources`) drawn per episode from [lo, hi].
+    waveform: an optional DM89 front end (see WaveformSpec): n_pulses pulses enter the receiver and
+    the episode holds what the detector makes of them.
     """
 
     name: str
@@ -293,6 +340,7 @@ class ScenarioSpec:
     blind: bool = False
     label_budget: int = 0
     n_active: tuple[int, int] | None = None
+    waveform: WaveformSpec | None = None
     description: str = ""
 
     def __post_init__(self) -> None:
@@ -335,6 +383,10 @@ class ScenarioSpec:
                       f"|ln alpha| * n_pulses <= ln 100")
         check(self.amplitudes or self.amplitude_noise_std == 0, "amplitude_noise_std", self.amplitude_noise_std,
               "needs amplitudes=true")
+        if isinstance(self.waveform, dict):
+            object.__setattr__(self, "waveform", _from_dict(WaveformSpec, self.waveform, "waveform"))
+        check(self.waveform is None or isinstance(self.waveform, WaveformSpec), "waveform", self.waveform,
+              "a WaveformSpec or null")
         if isinstance(self.priors, dict):
             object.__setattr__(self, "priors", _from_dict(PriorSpec, self.priors, "priors"))
         check(isinstance(self.priors, PriorSpec), "priors", self.priors, "a PriorSpec")

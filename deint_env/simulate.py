@@ -21,9 +21,14 @@ horizon that falls short).  Each row goes through exactly the float operations, 
 order, as a lone episode would: sequential sums (`cumsum`), elementwise arithmetic and reductions
 along contiguous rows do not depend on the batch; transcendental functions (`math.exp`, `np.sin`)
 are applied per episode.  tests/test_episode_hashes.py pins the episodes bit for bit.
+
+With `spec.waveform` (DM89's front end, `ScenarioSpec.waveform`) the episode's pulses then go through
+the channel and the detection-oriented Kalman filter, and the episode holds the detections.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import itertools
 import math
@@ -39,7 +44,7 @@ from deint_env.scenario import Modulation, Range, ScenarioSpec, SourceSpec
 
 _MIN_INTERVAL = 0.05  # intervals are clipped at this fraction of the PRI so a source never runs backwards
 # The random streams' roles (the second word of their seed key).
-DRAW, MISSING, JITTER, SPURIOUS, AMPLITUDE_NOISE, PRIORS, MODULATION, CUMULATIVE, AMPLITUDE = range(9)
+DRAW, MISSING, JITTER, SPURIOUS, AMPLITUDE_NOISE, PRIORS, MODULATION, CUMULATIVE, AMPLITUDE, WAVEFORM = range(10)
 _RANDOM_MODULATIONS = ("sinusoidal", "drifting")  # drawn per episode
 # Episodes simulated together hold about this many pulses: the temporaries then stay in cache and are
 # reused by the allocator (fresh pages fault, and faults are costly).
@@ -126,8 +131,35 @@ def simulate_many(spec: ScenarioSpec, seeds: Sequence[int]) -> list[Episode]:
     """One episode of `spec` per seed, each bit-identical to `simulate(spec, seed)`, made together."""
     seeds = [check_seed(s) for s in seeds]
     size = max(1, _BATCH_PULSES // spec.n_pulses)
-    return [episode for start in range(0, len(seeds), size)
-            for episode in _simulate_batch(spec, seeds[start:start + size])]
+    episodes = [episode for start in range(0, len(seeds), size)
+                for episode in _simulate_batch(spec, seeds[start:start + size])]
+    return [_detect(spec, ep) for ep in episodes] if spec.waveform is not None else episodes
+
+
+def _detect(spec: ScenarioSpec, ep: Episode) -> Episode:
+    """The waveform front end (`ScenarioSpec.waveform`): the episode's pulses through DM89's channel and
+    detector; the detections, with their true sources, become the episode."""
+    from baselines.dokf import detect_pulses  # the detector is a reference algorithm of baselines/
+
+    w = spec.waveform
+    height = ep.amplitude if ep.amplitude is not None else np.ones(len(ep))
+    origin = min(0.0, float(ep.toa[0]))  # the detector's grid starts at 0
+    horizon = float(ep.toa[-1] - origin)
+    lam = w.spike_prob if w.spike_prob is not None else min(0.5, len(ep) * w.sample_period / max(horizon, 1e-300))
+    sigma_r = w.spike_std if w.spike_std is not None else float(np.sqrt(np.mean(height ** 2)))
+    det = detect_pulses(ep.toa - origin, height, w.sample_period, w.channel, w.noise_std, lam, sigma_r,
+                        stream(ep.seed, WAVEFORM))
+    hit = det.pulse >= 0
+    source = np.where(hit, ep.source[np.maximum(det.pulse, 0)], -1).astype(np.int32)
+    mask = np.zeros(det.toa.size, dtype=np.uint64)  # every pulse on a detection's sample is in it
+    carried = det.detection >= 0
+    np.bitwise_or.at(mask, det.detection[carried], ep.mask[carried])
+    k = ep.truth.n_sources
+    n_received = np.array([np.count_nonzero(np.right_shift(mask, np.uint64(i)) & np.uint64(1)) for i in range(k)],
+                          dtype=np.int64)
+    truth = dataclasses.replace(ep.truth, n_received=n_received)
+    return dataclasses.replace(ep, toa=det.toa + origin, amplitude=det.amplitude if ep.amplitude is not None
+                               else None, source=source, mask=mask, truth=truth)
 
 
 def _simulate_batch(spec: ScenarioSpec, seeds: list[int]) -> list[Episode]:

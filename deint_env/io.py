@@ -52,19 +52,20 @@ MAX_LABEL = 4095  # a sanity bound for label files read without a known label co
 # atomic writes
 # ---------------------------------------------------------------------------------------------------
 @contextlib.contextmanager
-def atomic_write(path: PathLike) -> Iterator[TextIO]:
-    """Open a temporary file beside `path` for writing; it replaces `path` only if the block succeeds."""
+def atomic_path(path: PathLike) -> Iterator[Path]:
+    """A temporary path beside `path` to write to; it replaces `path` (synced, with the mode a plain
+    open() gives) only if the block succeeds, and is removed otherwise."""
     path = Path(path)
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as e:
         raise DeintError(f"{path}: cannot write ({e.strerror})") from None
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            yield f
-            f.flush()
+        yield Path(tmp)
+        with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
-        os.chmod(tmp, _file_mode(path))  # mkstemp makes 0600 files; keep the mode a plain open() gives
+        os.chmod(tmp, _file_mode(path))  # mkstemp makes 0600 files
         os.replace(tmp, path)
     except BaseException as e:
         with contextlib.suppress(OSError):
@@ -72,6 +73,13 @@ def atomic_write(path: PathLike) -> Iterator[TextIO]:
         if isinstance(e, OSError):
             raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
         raise
+
+
+@contextlib.contextmanager
+def atomic_write(path: PathLike) -> Iterator[TextIO]:
+    """Open a temporary file beside `path` for writing; it replaces `path` only if the block succeeds."""
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
+        yield f
 
 
 def _file_mode(path: Path) -> int:
@@ -91,17 +99,24 @@ def write_text(path: PathLike, text: str) -> None:
 # ---------------------------------------------------------------------------------------------------
 # reading CSV
 # ---------------------------------------------------------------------------------------------------
-def _read_text(path: Path, kind: str) -> str:
+def read_bytes(path: PathLike, kind: str) -> bytes:
+    """A file's bytes, every failure one line naming the file (`kind`: what the file should be)."""
+    path = Path(path)
     try:
-        return path.read_text(encoding="utf-8-sig")  # -sig: drop a spreadsheet's byte-order mark
+        return path.read_bytes()
     except FileNotFoundError:
         raise DeintError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise DeintError(f"{path}: is a directory, not a {kind} file") from None
-    except UnicodeDecodeError:
-        raise DeintError(f"{path}: is not a UTF-8 text ({kind}) file") from None
     except OSError as e:
         raise DeintError(f"{path}: cannot read ({e.strerror or e})") from None
+
+
+def _read_text(path: Path, kind: str) -> str:
+    try:
+        return read_bytes(path, kind).decode("utf-8-sig")  # -sig: drop a spreadsheet's byte-order mark
+    except UnicodeDecodeError:
+        raise DeintError(f"{path}: is not a UTF-8 text ({kind}) file") from None
 
 
 def _split(path: Path, text: str) -> tuple[list[str], list[str], list[int]]:

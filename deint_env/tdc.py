@@ -82,7 +82,6 @@ import inspect
 import math
 import os
 import re
-import tempfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -392,27 +391,11 @@ def write_tdc(path: PathLike, toa: np.ndarray, amplitude: np.ndarray | None = No
 
 
 def _atomic_h5(path: Path, fill: Callable[[Any], None]) -> None:
-    from deint_env.io import _file_mode
+    from deint_env.io import atomic_path
 
     h5py = _h5py()
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as e:
-        raise DeintError(f"{path}: cannot write ({e.strerror})") from None
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            fill(f)
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp, _file_mode(path))
-        os.replace(tmp, path)
-    except BaseException as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(e, OSError):
-            raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
-        raise
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        fill(f)
 
 
 def train_from_episode(episode: Episode, truth: bool = True) -> TDCTrain:

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from deint_env.errors import DeintError, NotApplicable
-from deint_env.io import from_file_labels, to_file_labels
+from deint_env.io import from_file_labels, read_bytes, to_file_labels
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
 from deint_env.leaderboard.render import write_file
 from deint_env.progress import Progress
@@ -83,14 +83,7 @@ class Item:
 def read_submission(path: str | os.PathLike) -> tuple[dict[str, Any], list[Item]]:
     """(header, items) of a submission file, NPZ when it is a zip archive, else JSON lines."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise DeintError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DeintError(f"{path}: is a directory, not a submission file") from None
-    except OSError as e:
-        raise DeintError(f"{path}: cannot read ({e.strerror or e})") from None
+    raw = read_bytes(path, "submission")
     return _read_npz(path, raw) if raw[:4] == b"PK\x03\x04" else _read_jsonl(path, raw)
 
 

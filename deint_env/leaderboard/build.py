@@ -259,15 +259,19 @@ def _flat(est: dict[str, tuple[float, float, float]], scored: int | None = None)
 
 
 def _rank(rows: list[dict[str, Any]]) -> None:
-    """Sort by score IQM (best first, no score last); number the non-oracle entries."""
+    """Sort by score IQM, best first; number the non-oracle entries that play every episode.  Entries
+    with partial coverage are scored on a subset, so they follow, unranked; entries with no score last."""
+    def scored(r):
+        return r["score_iqm"] is not None and math.isfinite(r["score_iqm"])
+
     def key(r):
-        v = r["score_iqm"]
-        return (0, -v, r["policy"]) if v is not None and math.isfinite(v) else (1, 0.0, r["policy"])
+        group = 0 if scored(r) and (r["oracle"] or r["coverage"] >= 1) else 1 if scored(r) else 2
+        return group, -r["score_iqm"] if scored(r) else 0.0, r["policy"]
 
     rows.sort(key=key)
     rank = 0
     for r in rows:
-        ranked = not r["oracle"] and r["score_iqm"] is not None and math.isfinite(r["score_iqm"])
+        ranked = not r["oracle"] and scored(r) and r["coverage"] >= 1
         rank += ranked
         r["rank"] = rank if ranked else None
 

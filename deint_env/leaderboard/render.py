@@ -172,7 +172,9 @@ def explanation(b: dict[str, Any]) -> list[str]:
         "probability of improvement: the chance that X outscores Y on a random test episode of a scenario, "
         "averaged over scenarios. Coverage is the share of episodes a policy can play (a prior-based policy "
         "cannot play a blind scenario, say): its scores are over those only. Oracles see the truth; they are "
-        "ceilings, not methods, and get no rank. The period errors are medians over episodes of the final "
+        "ceilings, not methods, and get no rank; so do entries that cannot play every episode (coverage "
+        "below 100 %), listed after the ranked ones because their scores are over a subset. The period "
+        "errors are medians over episodes of the final "
         "period estimates' mean relative error and of their RMS error over the Cramer-Rao bound (1 = "
         "efficient), for policies that report estimates. us/pulse is the policy's own compute time "
         "(measured on the machine that ran it: it varies between runs and machines).",

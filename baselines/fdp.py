@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.kalman import Block, DLMModel, innovation, predict, prior_block, update
+from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable
 
@@ -150,7 +150,7 @@ class FDPCore:
         m = self.model
         for _ in range(64):  # each pass skips one more missed arrival of every still-overdue source
             nxt = predict(_block(s), m)
-            late = y - nxt.tau > gate * np.sqrt(nxt.p_xx + m.jitter_var) + 0.5 * nxt.period
+            late = overdue(nxt, y, m, gate)
             if not late.any():
                 break
             for f, v in zip((PERIOD, TAU, P_TT, P_TX, P_XX), nxt):

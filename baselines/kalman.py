@@ -108,6 +108,12 @@ def update(pred: Block, e: np.ndarray, s: np.ndarray, m: DLMModel) -> Block:
                  pred.p_tx * r_inv_s, pred.p_xx * r_inv_s)
 
 
+def overdue(pred: Block, y: np.ndarray | float, m: DLMModel, gate: float) -> np.ndarray:
+    """MK94 VI-C-3's dropout test for coasting: a source whose predicted arrival lies more than `gate`
+    innovation deviations plus half a period before y has missed it."""
+    return y - pred.tau > gate * np.sqrt(pred.p_xx + m.jitter_var) + 0.5 * pred.period
+
+
 class AmplitudeBlock(NamedTuple):
     """(2.11): the source's amplitude a, a constant observed in white noise of variance R_a."""
 

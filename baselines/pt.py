@@ -49,7 +49,8 @@ from typing import Any
 import numpy as np
 
 from baselines.dokf import is_spurious
-from baselines.kalman import Block, DLMModel, innovation, phase_estimate, predict, prior_block, update
+from baselines.kalman import (Block, DLMModel, innovation, overdue, phase_estimate, predict, prior_block,
+                              update)
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable
 from deint_env.policies import policy_rng
@@ -113,7 +114,7 @@ class ProbabilisticTeacher:
         pred = predict(b, m)
         if self.coast:  # VI-C-3: skip the missed arrivals of every source overdue at y
             for _ in range(_MAX_COAST):
-                late = y - pred.tau > self.gate * np.sqrt(pred.p_xx + m.jitter_var) + 0.5 * pred.period
+                late = overdue(pred, y, m, self.gate)
                 if not late.any():
                     break
                 b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))

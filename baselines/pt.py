@@ -25,7 +25,7 @@ sample, drives the update, as DM89's q_hat(k|k) drives (16)-(17) (Agrawala's dec
 learning, against which ref. [6] sets the PT).
 
 Spurious pulses (only when the priors' spurious_rate r > 0): before deciding, the most probable
-source's innovation goes through DM89's Theorem 1 test (`baselines.dokf.is_spurious`, lambda =
+source's innovation goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`, lambda =
 r / (1 + r), spread T_j^2 / 12: a uniform arrival over one period); a pulse it calls spurious gets
 the spurious label and updates nothing.  pt-prior has no Step 1 (its choice ignores y), so no test.
 The DLM has no missing-pulse state, so a true pulse rejected by the test (or lost, or taken by the
@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.dokf import is_spurious
+from deint_env.receiver import is_spurious
 from baselines.kalman import (Block, DLMModel, innovation, overdue, phase_estimate, predict, prior_block,
                               update)
 from deint_env.episode import Priors

@@ -86,7 +86,7 @@ def accuracy_of(labels: np.ndarray, episode: Episode) -> float:
 
 def reference_accuracies(episode: Episode) -> tuple[float, float]:
     """(genie, random) accuracy on this episode; random labels are seeded by the episode's seed."""
-    from baselines.genie import episode_genie_labels
+    from deint_env.oracle import episode_genie_labels
 
     rng = np.random.default_rng([episode.seed, 0x7A4D0])
     random_labels = rng.integers(0, episode.n_labels + 1, len(episode))

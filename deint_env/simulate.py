@@ -139,7 +139,7 @@ def simulate_many(spec: ScenarioSpec, seeds: Sequence[int]) -> list[Episode]:
 def _detect(spec: ScenarioSpec, ep: Episode) -> Episode:
     """The waveform front end (`ScenarioSpec.waveform`): the episode's pulses through DM89's channel and
     detector; the detections, with their true sources, become the episode."""
-    from baselines.dokf import detect_pulses  # the detector is a reference algorithm of baselines/
+    from deint_env.receiver import detect_pulses
 
     w = spec.waveform
     height = ep.amplitude if ep.amplitude is not None else np.ones(len(ep))

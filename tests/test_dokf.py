@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from baselines.dokf import (DM89_CHANNEL, DOKF, detect_pulses, is_spurious, match_detections, realize, run_dokf,
+from deint_env.receiver import (DM89_CHANNEL, DOKF, detect_pulses, is_spurious, match_detections, realize, run_dokf,
                             threshold)
 from baselines.reproduce import run_experiment
 from baselines.reproduce.dm89 import bernoulli_gaussian_runs

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from baselines.genie import genie_labels, priors_genie_labels
+from deint_env.oracle import genie_labels, priors_genie_labels
 from deint_env import ScenarioSpec, SourceSpec, make_policy, simulate
 from deint_env.runner import accuracy_of, play, reference_accuracies
 
@@ -69,7 +69,7 @@ def test_genie_from_true_priors_equals_genie_from_schedule():
     spec = ScenarioSpec(name="t", sources=(SourceSpec(11.0, 3.0), SourceSpec(30.0, 4.0)), n_pulses=400,
                         toa_jitter_std=1.0, missing_prob=0.1, spurious_rate=0.1)
     ep = simulate(spec, 3)
-    from baselines.genie import episode_genie_labels
+    from deint_env.oracle import episode_genie_labels
     from deint_env.episode import Priors
 
     true = Priors(n_labels=2, period=np.array([11.0, 30.0]), phase=np.array([3.0, 4.0]),

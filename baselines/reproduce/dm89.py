@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from baselines.dokf import DM89_CHANNEL, detect_pulses, match_detections, realize, run_dokf
+from deint_env.receiver import DM89_CHANNEL, detect_pulses, match_detections, realize, run_dokf
 from baselines.reproduce import Report, experiment, figure
 from deint_env.simulate import simulate
 from deint_env.suites import find_entry

@@ -1,11 +1,12 @@
-"""Dai & Mendel's detection-oriented Kalman filter (DM89) for Bernoulli-Gaussian spike trains, and its
-two uses in deint-bench (DESIGN section 8):
+"""The receiver's waveform front end: Dai & Mendel's detection-oriented Kalman filter (DM89) for
+Bernoulli-Gaussian spike trains, and its two uses in deint-bench (DESIGN section 8):
 
 (a) the waveform front end `detect_pulses`: the pulse train sampled onto a grid of spikes
     mu(k) = q(k) r(k), convolved with a channel response v(k), plus white noise n(k) (DM89 (1)-(3)),
-    then detected online by the DOKF, so misses and false alarms come from detection;
-(b) the innovation test `is_spurious` for trackers: Theorem 1's MAP rule (21)-(24) applied to a
-    tracker's innovation, "spurious pulse" against "the predicted source's pulse".
+    then detected online by the DOKF, so misses and false alarms come from detection (the simulator's
+    `ScenarioSpec.waveform`);
+(b) the innovation test `is_spurious` for trackers (baselines/pt.py imports it from here): Theorem 1's
+    MAP rule (21)-(24) applied to a tracker's innovation, "spurious pulse" against "the predicted source's pulse".
 
 The filter.  The channel V(z) = B(z)/A(z) is realised in controllable canonical form (`realize`):
 x(k) = Phi x(k-1) + gamma mu(k-d), z(k) = h'x(k) + n(k), h' Phi^k gamma = v(k + d), where d is the

@@ -1,0 +1,158 @@
+"""The scoring oracle: the known-parameter MAP labelling, the ceiling of the normalised score
+(DESIGN section 6).  The runner scores every episode against it, and the `genie` policy
+(baselines/genie.py) plays it.
+
+The genie knows every source's noise-free emission schedule (the true parameters: periods, phases,
+modulation and the realised cumulative jitter) and the channel statistics, but not which emissions
+were missed or merged, nor the TOA noise, nor the spurious pulses.  Its labelling is the MAP
+alignment of the received TOAs y_1 < ... < y_n to the sorted schedule s_1 < ... < s_m: every
+received pulse is matched to one emission or called spurious, every emission is received at most
+once, and matches keep their order (for equal-variance Gaussian noise an optimal matching never
+crosses: swapping two crossed pairs lowers sum (y - s)^2).  With nothing missed or spurious this is
+"the k-th received pulse is the k-th scheduled arrival".
+
+Negative log-likelihood of an alignment: a match costs (y - s)^2 / (2 sigma^2) + log(sigma sqrt(2 pi))
+- log(1 - p_i), a skipped emission -log p_i, a spurious pulse -log lambda (lambda: spurious pulses per
+unit time), where p_i is the chance emission i is not received on its own: missed, or merged into a
+neighbour closer than the coincidence resolution.  The dynamic programme runs over the received
+pulses with, as state, the last schedule index matched; only emissions within 7 sigma of a pulse can
+be matched (a truncation of probability < 1e-11), and every state left of the current window is
+collapsed into one, so a pulse costs O(candidates) and the whole episode O(n).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.special import ndtr
+
+from deint_env.episode import Episode, Priors
+from deint_env.errors import DeintError
+
+_WINDOW_SIGMAS = 7.0
+_FLOOR = 1e-12  # probabilities of 0 would make an alignment impossible rather than just unlikely
+
+
+def genie_labels(toa: np.ndarray, schedule_toa: np.ndarray, schedule_source: np.ndarray, jitter_std: float,
+                 missing_prob: float, spurious_intensity: float, resolution: float) -> np.ndarray:
+    """MAP source of each received pulse (-1 = spurious) given the true schedule; see module doc."""
+    order = np.argsort(schedule_toa, kind="stable")
+    s, src = schedule_toa[order], schedule_source[order]
+    n, m = toa.size, s.size
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    spacing = float(np.median(np.diff(s))) if m > 1 else 1.0
+    sigma = max(jitter_std, 1e-9 * max(spacing, 1e-300))
+    # p_i: missed, or merged with a neighbour (the pair lands closer than `resolution`; either may
+    # survive, so each member is absorbed with half the pair's probability).
+    p_merge = np.zeros(m)
+    if resolution > 0 and m > 1:
+        d = np.diff(s)
+        scale = sigma * math.sqrt(2.0)
+        pair = ndtr((resolution - d) / scale) - ndtr((-resolution - d) / scale)
+        p_merge[1:] += 0.5 * pair
+        p_merge[:-1] += 0.5 * pair
+    p = np.clip(missing_prob + (1.0 - missing_prob) * p_merge, _FLOOR, 1.0 - _FLOOR)
+    # A match of emission i costs (y - s_i)^2 / (2 sigma^2) + offset_i, with the skip of i already
+    # paid for in the state value (see _align).
+    offset = (math.log(sigma * math.sqrt(2 * math.pi)) - np.log1p(-p) + np.log(p)).tolist()
+    spur = -math.log(max(spurious_intensity, _FLOOR / max(spacing, 1e-300)))
+    w = _WINDOW_SIGMAS * sigma
+    lo = np.searchsorted(s, toa - w, side="left")
+    hi = np.searchsorted(s, toa + w, side="right")
+    matched = _align(toa.tolist(), s.tolist(), offset, lo.tolist(), hi.tolist(), 0.5 / sigma**2, spur)
+    labels = np.full(n, -1, dtype=np.int64)
+    rows = [j for j, i in matched]
+    labels[rows] = src[[i for j, i in matched]]
+    return labels
+
+
+def _align(y, s, offset, lo, hi, inv2var, spur):
+    """The DP.  State: the last schedule index matched, m (-1: none).  Its value is
+    V(m) = cost - C[m+1], C being the prefix sums of skip costs, so moving from state m to a match of
+    emission i costs V(m) + (y - s_i)^2 / (2 sigma^2) + offset_i with the skips in between free of
+    bookkeeping.  A spurious pulse adds `spur` to every state (kept as a running offset).  States
+    left of the window are folded into `base`.  Nodes (pulse, emission, parent) record the matches
+    for backtracking."""
+    node_j, node_i, node_parent = [], [], []
+    base_v, base_node = 0.0, -1  # the folded states: best value and its path
+    states: dict[int, list] = {}  # m -> [stored value, node]; true value = stored + shift
+    keys: list[int] = []  # the states' m, increasing
+    shift = 0.0
+    for j, yj in enumerate(y):
+        a, b = lo[j], hi[j]
+        # fold states that no future pulse can extend differently
+        k = 0
+        while k < len(keys) and keys[k] < a:
+            v, nd = states.pop(keys[k])
+            if v + shift < base_v:
+                base_v, base_node = v + shift, nd
+            k += 1
+        if k:
+            del keys[:k]
+        new = []
+        added = False
+        best_v, best_node, q = base_v, base_node, 0
+        for i in range(a, b):
+            while q < len(keys) and keys[q] < i:  # prefix minimum over states m < i
+                v, nd = states[keys[q]]
+                if v + shift < best_v:
+                    best_v, best_node = v + shift, nd
+                q += 1
+            d = yj - s[i]
+            new.append((i, best_v + d * d * inv2var + offset[i], best_node))
+        shift += spur  # every existing state calls pulse j spurious
+        base_v += spur
+        for i, v, parent in new:
+            old = states.get(i)
+            if old is None or v < old[0] + shift:
+                node_j.append(j), node_i.append(i), node_parent.append(parent)
+                if old is None:
+                    keys.append(i)
+                    added = True
+                states[i] = [v - shift, len(node_j) - 1]
+        if added:
+            keys.sort()
+    best_v, best_node = base_v, base_node
+    for v, nd in states.values():
+        if v + shift < best_v:
+            best_v, best_node = v + shift, nd
+    out = []
+    while best_node >= 0:
+        out.append((node_j[best_node], node_i[best_node]))
+        best_node = node_parent[best_node]
+    return out
+
+
+def episode_genie_labels(episode: Episode) -> np.ndarray:
+    """Genie labels (label ids, n_labels = spurious) for a simulated episode, from its truth."""
+    truth = episode.truth
+    if truth is None:
+        raise DeintError("genie needs the episode's truth (a simulated episode, or true parameters in the priors)")
+    counts = np.diff(truth.schedule_offsets)
+    sched_src = np.repeat(np.arange(truth.n_sources), counts)
+    pri = episode.priors
+    spec_rate = float(np.sum(1.0 / truth.period))
+    src = genie_labels(episode.toa, truth.schedule_toa, sched_src, pri.jitter_std, pri.missing_prob,
+                       pri.spurious_rate * spec_rate, pri.coincidence_resolution)
+    return np.where(src < 0, episode.n_labels, src)
+
+
+def priors_genie_labels(toa: np.ndarray, priors: Priors) -> np.ndarray:
+    """Genie labels from true constant-PRI parameters given as priors (the `deint label` case)."""
+    if priors.blind or not np.all(np.isfinite(priors.phase)):
+        raise DeintError("genie needs the true period and phase of every source in the priors file "
+                         "('period' and 'phase')")
+    resolution = priors.coincidence_resolution
+    t_end = float(toa[-1]) + 8 * priors.jitter_std + resolution + 1.0
+    sched, srcs = [], []
+    for i, (t, ph) in enumerate(zip(priors.period, priors.phase)):
+        k = np.arange(max(0, int(math.floor((float(toa[0]) - 8 * priors.jitter_std - ph) / t)) - 1),
+                      int(math.ceil((t_end - ph) / t)) + 1)
+        k = k[k >= 0]
+        sched.append(ph + k * t), srcs.append(np.full(k.size, i))
+    rate = float(np.sum(1.0 / priors.period))
+    src = genie_labels(toa, np.concatenate(sched), np.concatenate(srcs), priors.jitter_std, priors.missing_prob,
+                       priors.spurious_rate * rate, resolution)
+    return np.where(src < 0, priors.n_labels, src)

@@ -30,3 +30,6 @@ register_policy("ekf-bank", "baselines.ekf:EKFBank",
 register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
                 description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
                             "learning rule (12), in a bank as ekf-bank")
+register_policy("tdc", "baselines.tdc_adapter:TDCDeinterleaver",
+                description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name), "
+                            "labelling windows of `window` pulses (blind only)")

@@ -12,7 +12,7 @@
     deint leaderboard export --suite SUITE --policy SPEC -o FILE
     deint tdc convert INPUT OUTPUT [--float64]
 
-PULSES and LABELS may also be Turing Deinterleaving Challenge files (.h5/.hdf5; see deint_env.tdc).
+PULSES and LABELS may also be Turing Deinterleaving Challenge files (.h5/.hdf5; see deint_env.formats.tdc).
 
 Bad input is one line `deint: error: ...` on stderr and exit status 2; Ctrl-C is one line and 130.
 Tables and JSON go to stdout, status lines to stderr.
@@ -32,7 +32,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from deint_env import io, tdc
+from deint_env import formats, tdc_scores
+from deint_env.formats import tdc
 from deint_env.errors import DeintError
 from deint_env.runner import json_ready
 
@@ -93,7 +94,7 @@ def _scenario(text: str):
 
     if os.path.isfile(text):
         try:
-            return ScenarioSpec.from_dict(io.read_json(text))
+            return ScenarioSpec.from_dict(formats.read_json(text))
         except DeintError as e:
             msg = str(e)
             raise DeintError(msg if msg.startswith(text) else f"{text}: {msg}") from None
@@ -109,13 +110,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     spec = _scenario(args.scenario)
     episode = simulate(spec, args.seed)
     # Every output is formatted (and so validated) before any is written.
-    outputs = [(args.output, io.format_pulses(episode, truth=not args.no_truth))]
+    outputs = [(args.output, formats.format_pulses(episode, truth=not args.no_truth))]
     if args.priors_out:
-        outputs.append((args.priors_out, io.format_priors(episode.priors, where=args.priors_out)))
+        outputs.append((args.priors_out, formats.format_priors(episode.priors, where=args.priors_out)))
     if args.true_priors_out:
-        outputs.append((args.true_priors_out, io.format_priors(io.true_priors(episode), where=args.true_priors_out)))
+        outputs.append((args.true_priors_out, formats.format_priors(formats.true_priors(episode), where=args.true_priors_out)))
     for path, text in outputs:
-        io.write_text(path, text)
+        formats.write_text(path, text)
     _status(f"deint: {len(episode)} pulses of {spec.name} (seed {args.seed}) -> "
             + ", ".join(path for path, _ in outputs))
     return 0
@@ -156,7 +157,7 @@ def _cli_priors(args: argparse.Namespace):
     if args.priors is not None:
         if args.n_sources is not None or args.prior_periods is not None:
             raise DeintError("give either --priors or --n-sources/--prior-periods, not both")
-        return io.read_priors(args.priors)
+        return formats.read_priors(args.priors)
     if args.n_sources is not None and args.n_sources < 1:
         raise DeintError(f"--n-sources={args.n_sources} is invalid: an integer >= 1")
     if args.prior_periods is None:
@@ -212,14 +213,14 @@ def cmd_label(args: argparse.Namespace) -> int:
         if hasattr(policy, "attach_data"):
             policy.attach_data(train.model_input())
     else:
-        episode = io.read_pulses(args.pulses, priors)
+        episode = formats.read_pulses(args.pulses, priors)
     t0 = time.perf_counter()
     result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
     seconds = time.perf_counter() - t0
     if tdc.is_tdc_path(args.output):  # a TDC file: the input's rows with the predicted labels
         tdc.write_labels(args.output, train or episode, result.labels, priors.n_labels, f"labels of {args.policy}")
     else:
-        io.write_labels(args.output, episode.toa, result.labels, priors.n_labels)
+        formats.write_labels(args.output, episode.toa, result.labels, priors.n_labels)
     _status(f"deint: labelled {len(episode)} pulses with {args.policy} (lag {policy.lag}) in {seconds:.2f} s "
             f"-> {args.output}")
     return 0
@@ -250,7 +251,7 @@ def _add_score(sub) -> None:
 def _read_label_file(args: argparse.Namespace, toa: np.ndarray) -> np.ndarray:
     """File labels (-1 = spurious) of a label CSV, or of a TDC file's labels (negative ids -> -1)."""
     if not tdc.is_tdc_path(args.labels):
-        return io.read_labels(args.labels, toa, args.n_labels, pulses=args.truth)
+        return formats.read_labels(args.labels, toa, args.n_labels, pulses=args.truth)
     labels = np.maximum(tdc.read_label_ids(args.labels, toa, args.truth), -1)
     if args.n_labels is not None and labels.max() >= args.n_labels:
         raise DeintError(f"{args.labels}: label {int(labels.max())} is outside --n-labels={args.n_labels} "
@@ -259,13 +260,13 @@ def _read_label_file(args: argparse.Namespace, toa: np.ndarray) -> np.ndarray:
 
 
 def _score_tdc(args: argparse.Namespace) -> dict[str, Any]:
-    """Blind scores against a TDC file's emitter ids (see `deint_env.tdc.score_labels`)."""
+    """Blind scores against a TDC file's emitter ids (see `deint_env.tdc_scores.score_labels`)."""
     truth = tdc.read_tdc(args.truth)
     if truth.labels is None:
         raise DeintError(f"{args.truth}: has no 'labels' dataset; score needs the true emitter ids")
-    if args.n_labels is not None and not 1 <= args.n_labels <= io.MAX_LABEL + 1:
-        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {io.MAX_LABEL + 1}]")
-    return tdc.score_labels(_read_label_file(args, truth.toa), truth.labels, args.n_labels)
+    if args.n_labels is not None and not 1 <= args.n_labels <= formats.MAX_LABEL + 1:
+        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {formats.MAX_LABEL + 1}]")
+    return tdc_scores.score_labels(_read_label_file(args, truth.toa), truth.labels, args.n_labels)
 
 
 def cmd_score(args: argparse.Namespace) -> int:
@@ -273,15 +274,15 @@ def cmd_score(args: argparse.Namespace) -> int:
 
     if tdc.is_tdc_path(args.truth):  # TDC truth: emitter ids without priors, always scored blind
         return _print_metrics(args, json_ready(_score_tdc(args)))
-    truth = io.read_pulse_table(args.truth)
+    truth = formats.read_pulse_table(args.truth)
     if truth.source is None:
         raise DeintError(f"{args.truth}: has no 'source' column; score needs a truth file "
                          f"(`deint simulate` without --no-truth)")
-    if args.n_labels is not None and not 1 <= args.n_labels <= io.MAX_LABEL + 1:
-        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {io.MAX_LABEL + 1}]")
+    if args.n_labels is not None and not 1 <= args.n_labels <= formats.MAX_LABEL + 1:
+        raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {formats.MAX_LABEL + 1}]")
     labels = _read_label_file(args, truth.toa)
     n_labels = args.n_labels or max(truth.n_sources, int(labels.max()) + 1, 1)
-    metrics = label_metrics(io.from_file_labels(labels, n_labels), truth.source, truth.mask, n_labels,
+    metrics = label_metrics(formats.from_file_labels(labels, n_labels), truth.source, truth.mask, n_labels,
                             args.blind, clustering=True)
     return _print_metrics(args, json_ready({"n_labels": n_labels, "blind": args.blind, **metrics}))
 

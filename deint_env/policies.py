@@ -23,8 +23,7 @@ from deint_env.episode import Priors
 from deint_env.errors import DeintError
 
 # Modules whose import registers their policies (baselines first: the floors and the ceiling).
-# deint_env.tdc registers the TDC model adapter; it imports h5py only when it reads or writes a file.
-PROVIDERS = ("baselines", "agents", "deint_env.tdc")
+PROVIDERS = ("baselines", "agents")
 
 
 @runtime_checkable

@@ -8,7 +8,7 @@ import stat
 import numpy as np
 import pytest
 
-from deint_env import io
+from deint_env import formats as io
 from deint_env.episode import Priors
 from deint_env.errors import DeintError
 from deint_env.scenario import PriorSpec, ScenarioSpec, SourceSpec

@@ -1,5 +1,5 @@
 """Turing Deinterleaving Challenge interoperability: its HDF5 files, its Deinterleaver models as
-policies, and its metric set (deint_env.tdc)."""
+policies, and its metric set (deint_env.formats.tdc, baselines.tdc_adapter, deint_env.tdc_scores)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 from sklearn import metrics as skm
 
-from deint_env import tdc
+from baselines import tdc_adapter
+from deint_env import tdc_scores
+from deint_env.formats import tdc
 from deint_env.cli import main
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
@@ -240,7 +242,7 @@ def test_tdc_scores_equal_scikit_learn(seed):
     rng = np.random.default_rng(seed)
     true = rng.choice([-1, 3, 7, 11, 20], size=300, p=[0.1, 0.3, 0.3, 0.2, 0.1])
     pred = np.where(rng.random(300) < 0.7, true, rng.integers(-1, 6, 300))
-    got = tdc.tdc_scores(true, pred)
+    got = tdc_scores.tdc_scores(true, pred)
     want = {"homogeneity": skm.homogeneity_score(true, pred), "completeness": skm.completeness_score(true, pred),
             "v_measure": skm.v_measure_score(true, pred), "ari": skm.adjusted_rand_score(true, pred),
             "ami": skm.adjusted_mutual_info_score(true, pred), "mcc": reference_cluster_wise(true, pred, "mcc"),
@@ -249,7 +251,7 @@ def test_tdc_scores_equal_scikit_learn(seed):
     # their noise convention: pulses whose true label is the model's default label are left out and
     # every score is discounted by the share kept
     keep = true != -1
-    masked = tdc.tdc_scores(true, pred, default_label=-1)
+    masked = tdc_scores.tdc_scores(true, pred, default_label=-1)
     ratio = keep.mean()
     assert masked["discount"] == pytest.approx(ratio)
     assert masked["v_measure"] == pytest.approx(ratio * skm.v_measure_score(true[keep], pred[keep]))
@@ -294,7 +296,7 @@ def test_many_emitters_score_by_clustering_alone():
     rng = np.random.default_rng(0)
     true = rng.integers(0, 90, 2000)  # TSRD trains have up to 90 emitters: beyond a 64-bit mask
     pred = np.where(rng.random(2000) < 0.9, true, 0)
-    got = tdc.score_labels(pred, true)
+    got = tdc_scores.score_labels(pred, true)
     assert got["n_emitters"] == 90 and "accuracy" not in got
     assert got["v_measure"] == pytest.approx(skm.v_measure_score(true, pred), abs=1e-12)
 
@@ -309,10 +311,10 @@ def blind_episode(n_labels: int = 6, **kw):
 def test_whole_window_policy_equals_labelling_the_train():
     train, episode = blind_episode()
     model = ColumnModel(floor=0.5)  # the amplitude column; the noise pulses (amplitude 0) get -1
-    policy = tdc.from_deinterleaver(model, window=len(episode))
+    policy = tdc_adapter.from_deinterleaver(model, window=len(episode))
     assert policy.lag == len(episode) - 1 and policy.noise_label == -1
     res = play(policy, episode)
-    direct = tdc.label_episode(ColumnModel(floor=0.5), episode)
+    direct = tdc_adapter.label_episode(ColumnModel(floor=0.5), episode)
     assert np.array_equal(res.labels, direct)
     assert model.calls == [(1, len(episode), 2), (len(episode), 2)]  # batch of one refused, bare train taken
     spur = episode.n_labels
@@ -324,9 +326,9 @@ def test_whole_window_policy_equals_labelling_the_train():
 def test_windows_label_each_block_on_its_own(window):
     train, episode = blind_episode(n_labels=3)
     model = BatchModel()
-    res = play(tdc.from_deinterleaver(model, window=window), episode)
-    rows = tdc.episode_input(episode)
-    want = np.concatenate([tdc.to_blind_labels(np.round(rows[i:i + window, -1]).astype(int), 3)
+    res = play(tdc_adapter.from_deinterleaver(model, window=window), episode)
+    rows = tdc_adapter.episode_input(episode)
+    want = np.concatenate([tdc_adapter.to_blind_labels(np.round(rows[i:i + window, -1]).astype(int), 3)
                            for i in range(0, len(episode), window)])
     assert np.array_equal(res.labels, want)
     assert all(len(c) == 3 and c[0] == 1 for c in model.calls)  # always the batch convention
@@ -334,10 +336,10 @@ def test_windows_label_each_block_on_its_own(window):
 
 def test_label_budget_overflow():
     ids = np.array([5, 5, 9, 2, -1, 9, 4, 2])
-    assert tdc.to_blind_labels(ids, 2).tolist() == [0, 0, 1, 2, 2, 1, 2, 2]  # first-seen; -1 a cluster too
-    assert tdc.to_blind_labels(ids, 3, noise_label=-1).tolist() == [0, 0, 1, 2, 3, 1, 3, 2]
+    assert tdc_adapter.to_blind_labels(ids, 2).tolist() == [0, 0, 1, 2, 2, 1, 2, 2]  # first-seen; -1 a cluster too
+    assert tdc_adapter.to_blind_labels(ids, 3, noise_label=-1).tolist() == [0, 0, 1, 2, 3, 1, 3, 2]
     with pytest.raises(NotApplicable, match="found 4 emitters in a window; the label budget is 3"):
-        tdc.to_blind_labels(ids, 3, noise_label=-1, overflow="raise")
+        tdc_adapter.to_blind_labels(ids, 3, noise_label=-1, overflow="raise")
 
 
 def test_registered_policy_and_its_errors():
@@ -359,7 +361,7 @@ def test_registered_policy_and_its_errors():
             return np.zeros(3)
 
     with pytest.raises(DeintError, match="returned shape"):
-        play(tdc.from_deinterleaver(Broken(), window=10), episode)
+        play(tdc_adapter.from_deinterleaver(Broken(), window=10), episode)
 
 
 def test_label_and_score_a_tdc_file_with_a_model(tmp_path, capsys, monkeypatch):
@@ -390,7 +392,7 @@ def test_convert_round_trip(tmp_path, capsys, monkeypatch):
     assert code == 0 and "merged pulses keep their primary source only" in err, err
     code, _, err = deint(capsys, "tdc", "convert", "p.h5", "back.csv")
     assert code == 0, err
-    from deint_env.io import read_pulse_table
+    from deint_env.formats import read_pulse_table
 
     a, b = read_pulse_table("p.csv"), read_pulse_table("back.csv")
     assert np.array_equal(a.toa, b.toa) and np.array_equal(a.source, b.source)

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from deint_env.errors import DeintError, NotApplicable
-from deint_env.io import from_file_labels, read_bytes, to_file_labels
+from deint_env.formats import from_file_labels, read_bytes, to_file_labels
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
 from deint_env.leaderboard.render import write_file
 from deint_env.progress import Progress

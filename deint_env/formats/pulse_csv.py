@@ -1,4 +1,4 @@
-"""Files (DESIGN section 7): pulse files, label files and priors files.
+"""Pulse files and label files (CSV; DESIGN section 7).
 
 Pulse file: CSV with a header naming its columns, one pulse per line, sorted by TOA::
 
@@ -14,109 +14,28 @@ Label file: CSV `toa,label`, one line per pulse of the pulse file and in its ord
 spurious.  Inside the package the spurious label is `n_labels` (the env's action), so `write_labels`
 takes env labels and `read_labels` returns file labels; `from_file_labels` maps them back.
 
-Priors file: JSON, `{"period": [...], "phase": [...], "jitter_std": s, ...}` (see
-`Priors.from_json_dict`).
-
 Floats are written with `repr` (the shortest string that reads back to the same float64), so round
-trips are exact.  Every output is written to a temporary file in the target's directory and renamed
-over the target only when complete: an error or an interrupt never leaves a half-written file nor
-clobbers a good one.  Every problem with an input is one `DeintError` line naming the file, the line
-and what is allowed.
+trips are exact.  Files are written through `files.atomic_write`.  Every problem with an input is one
+`DeintError` line naming the file, the line and what is allowed.
 """
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import itertools
-import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, TextIO
 
 import numpy as np
 
-from deint_env.episode import SCALARS, Episode, Priors
+from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError
+from deint_env.formats.files import PathLike, read_text, write_text
 from deint_env.scenario import MAX_SOURCES
 
-PathLike = str | os.PathLike
 PULSE_COLUMNS = ("toa", "amplitude", "source", "sources")
 LABEL_COLUMNS = ("toa", "label")
 MAX_LABEL = 4095  # a sanity bound for label files read without a known label count
-
-
-# ---------------------------------------------------------------------------------------------------
-# atomic writes
-# ---------------------------------------------------------------------------------------------------
-@contextlib.contextmanager
-def atomic_path(path: PathLike) -> Iterator[Path]:
-    """A temporary path beside `path` to write to; it replaces `path` (synced, with the mode a plain
-    open() gives) only if the block succeeds, and is removed otherwise."""
-    path = Path(path)
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as e:
-        raise DeintError(f"{path}: cannot write ({e.strerror})") from None
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.chmod(tmp, _file_mode(path))  # mkstemp makes 0600 files
-        os.replace(tmp, path)
-    except BaseException as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(e, OSError):
-            raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
-        raise
-
-
-@contextlib.contextmanager
-def atomic_write(path: PathLike) -> Iterator[TextIO]:
-    """Open a temporary file beside `path` for writing; it replaces `path` only if the block succeeds."""
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as f:
-        yield f
-
-
-def _file_mode(path: Path) -> int:
-    try:
-        return os.stat(path).st_mode & 0o777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
-
-
-def write_text(path: PathLike, text: str) -> None:
-    with atomic_write(path) as f:
-        f.write(text)
-
-
-# ---------------------------------------------------------------------------------------------------
-# reading CSV
-# ---------------------------------------------------------------------------------------------------
-def read_bytes(path: PathLike, kind: str) -> bytes:
-    """A file's bytes, every failure one line naming the file (`kind`: what the file should be)."""
-    path = Path(path)
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise DeintError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DeintError(f"{path}: is a directory, not a {kind} file") from None
-    except OSError as e:
-        raise DeintError(f"{path}: cannot read ({e.strerror or e})") from None
-
-
-def _read_text(path: Path, kind: str) -> str:
-    try:
-        return read_bytes(path, kind).decode("utf-8-sig")  # -sig: drop a spreadsheet's byte-order mark
-    except UnicodeDecodeError:
-        raise DeintError(f"{path}: is not a UTF-8 text ({kind}) file") from None
 
 
 def _split(path: Path, text: str) -> tuple[list[str], list[str], list[int]]:
@@ -149,7 +68,7 @@ def _split(path: Path, text: str) -> tuple[list[str], list[str], list[int]]:
 def _table(path: Path, allowed: tuple[str, ...], what: str) -> tuple[list[str], list[list[str]], int]:
     """(column names, the cells of each column, number of data rows), the header checked.
     Data row i is on line i + 2."""
-    header, cells, widths = _split(path, _read_text(path, "CSV"))
+    header, cells, widths = _split(path, read_text(path, "CSV"))
     header = [h.strip() for h in header]
     example = ",".join(allowed)
     if not header:
@@ -394,53 +313,3 @@ def read_labels(path: PathLike, toa: np.ndarray | None = None, n_labels: int | N
     else:
         _check_sorted(path, file_toa)
     return labels
-
-
-# ---------------------------------------------------------------------------------------------------
-# JSON: priors and scenario files
-# ---------------------------------------------------------------------------------------------------
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a number JSON allows")
-
-
-def read_json(path: PathLike) -> Any:
-    """A JSON file; NaN and Infinity are rejected (they are not JSON)."""
-    path = Path(path)
-    text = _read_text(path, "JSON")
-    try:
-        return json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as e:
-        raise DeintError(f"{path}: line {e.lineno} column {e.colno}: not valid JSON ({e.msg})") from None
-    except ValueError as e:
-        raise DeintError(f"{path}: {e}") from None
-
-
-def format_json(obj: Any) -> str:
-    try:
-        return json.dumps(obj, indent=1, allow_nan=False) + "\n"
-    except ValueError:
-        raise DeintError("cannot write NaN or infinite numbers to a JSON file") from None
-
-
-def read_priors(path: PathLike) -> Priors:
-    return Priors.from_json_dict(read_json(path), where=str(path))
-
-
-def format_priors(priors: Priors | dict[str, Any], where: str = "priors") -> str:
-    """A priors file's text; it is checked to read back before anything is written."""
-    d = priors.to_json_dict() if isinstance(priors, Priors) else priors
-    Priors.from_json_dict(d, where=where)
-    return format_json(d)
-
-
-def write_priors(path: PathLike, priors: Priors | dict[str, Any]) -> None:
-    write_text(path, format_priors(priors, where=str(path)))
-
-
-def true_priors(episode: Episode) -> dict[str, Any]:
-    """A priors dict holding a simulated episode's true periods and phases and its channel statistics:
-    what `genie` needs to label a pulse file (exact for constant-PRI, always-on sources)."""
-    if episode.truth is None:
-        raise DeintError("true priors need a simulated episode (its truth)")
-    return {"period": episode.truth.period.tolist(), "phase": episode.truth.phase.tolist(),
-            **{k: float(getattr(episode.priors, k)) for k in SCALARS}}

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from deint_env import simulate
 from deint_env.errors import DeintError
-from deint_env.simulate import simulate_many, stream, streams
+from deint_env.sim.streams import stream, streams
+from deint_env.simulate import simulate_many
 from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
 from deint_env.suites import resolve_scenario
 

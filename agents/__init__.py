@@ -1,7 +1,10 @@
-"""Learned agents (stable-baselines3 / torch).  Importing this package only registers their names:
-the entry points are strings, so torch and stable-baselines3 load when a policy is first built."""
+"""Learned agents (stable-baselines3 / torch).  `POLICIES` is this package's entry in the
+`deint_bench.policies` entry point group: the factories are strings, so torch and stable-baselines3
+load when a policy is first built."""
 
-from deint_env.policies import register_policy
+from deint_env.policies import PolicyInfo
 
-register_policy("ppo", "agents.ppo:PPOPolicy", extra="rl",
-                description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario")
+POLICIES = (
+    PolicyInfo("ppo", "agents.ppo:PPOPolicy", kind="learned", modes=("anchored",), extra="rl",
+               description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario"),
+)

@@ -1,35 +1,40 @@
-"""Reference policies: the paper algorithms, the floors and the oracle ceiling.
+"""Reference policies: the paper algorithms, the floors, the oracle ceiling and the TDC model adapter.
 
-Importing this package registers them; `deint_env.make_policy("NAME:key=value")` builds one.
+`POLICIES` is this package's entry in the `deint_bench.policies` entry point group (pyproject.toml);
+`deint_env.make_policy("NAME:key=value")` builds one.  Importing this package imports no algorithm.
 """
 
-from deint_env.policies import register_policy
+from deint_env.policies import Limits, PolicyInfo
 
-register_policy("random", "baselines.floors:RandomPolicy", description="uniform random labels (floor)")
-register_policy("nearest-prior", "baselines.floors:NearestPrior",
-                description="nearest arrival predicted by the priors, never updated (floor)")
-register_policy("genie", "baselines.genie:Genie", oracle=True,
-                description="known-parameter MAP labelling from the true schedule (ceiling, oracle)")
-register_policy("tree", "baselines.tree:TreeSearch",
-                description="MK94 II-G: the optimal full tree search (2.19), short trains only")
-register_policy("fdp", "baselines.fdp:FDP",
-                description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
-                            "supernumerary, dropout options of VI)")
-register_policy("fdp-ll", "baselines.fdp:FDPLikelihood",
-                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)")
-register_policy("pt-prior", "baselines.pt:PTPrior",
-                description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities")
-register_policy("pt-post", "baselines.pt:PTPost",
-                description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)")
-register_policy("dokf", "baselines.pt:DOKFTracker",
-                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
-                            "update; coasts through missed arrivals")
-register_policy("ekf-bank", "baselines.ekf:EKFBank",
-                description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
-                            "phase initialisations; labels from the best filter's predicted arrivals")
-register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
-                description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
-                            "learning rule (12), in a bank as ekf-bank")
-register_policy("tdc", "baselines.tdc_adapter:TDCDeinterleaver",
-                description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name), "
-                            "labelling windows of `window` pulses (blind only)")
+ANCHORED = ("anchored",)
+
+POLICIES = (
+    PolicyInfo("random", "baselines.floors:RandomPolicy", description="uniform random labels (floor)"),
+    PolicyInfo("nearest-prior", "baselines.floors:NearestPrior", modes=ANCHORED,
+               description="nearest arrival predicted by the priors, never updated (floor)"),
+    PolicyInfo("genie", "baselines.genie:Genie", kind="oracle",
+               description="known-parameter MAP labelling from the true schedule (ceiling, oracle)"),
+    PolicyInfo("tree", "baselines.tree:TreeSearch", modes=ANCHORED, limits=Limits(max_pulses=20),
+               description="MK94 II-G: the optimal full tree search (2.19), short trains only"),
+    PolicyInfo("fdp", "baselines.fdp:FDP", modes=ANCHORED,
+               description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
+                           "supernumerary, dropout options of VI)"),
+    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED,
+               description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
+    PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
+               description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities"),
+    PolicyInfo("pt-post", "baselines.pt:PTPost", modes=ANCHORED,
+               description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)"),
+    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED,
+               description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
+                           "update; coasts through missed arrivals"),
+    PolicyInfo("ekf-bank", "baselines.ekf:EKFBank", modes=ANCHORED,
+               description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
+                           "phase initialisations; labels from the best filter's predicted arrivals"),
+    PolicyInfo("ekf-coupled", "baselines.coupled:EKFCoupled", modes=ANCHORED,
+               description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
+                           "learning rule (12), in a bank as ekf-bank"),
+    PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=("blind",),
+               description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name, runs that "
+                           "code), labelling windows of `window` pulses"),
+)

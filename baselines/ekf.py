@@ -50,7 +50,6 @@ from typing import Any
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
 from deint_env.policies import policy_rng
 
 TWO_PI = 2.0 * math.pi
@@ -121,9 +120,6 @@ class SampledBank:
 
     # -- reset ----------------------------------------------------------------------------------------
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable(f"{self.name} needs priors (the number of trains and their PRFs); "
-                             "blind scenarios have none")
         self._priors = priors
         self.m = priors.n_labels
         self.Ts = float(self.ts) if self.ts is not None else round_down(float(np.min(priors.period)) / self.oversample)

@@ -48,7 +48,6 @@ import numpy as np
 
 from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
 
 # Node state: per hypothesis, per source, these fields (the block, then pulses assigned so far).
 PERIOD, TAU, P_TT, P_TX, P_XX, COUNT = range(6)
@@ -194,8 +193,6 @@ class FDP:
         self.lag = lookahead + (1 if supernumerary else 0)
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable("fdp needs priors (an anchored scenario)")
         if float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
             raise ValueError(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
                              f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6")

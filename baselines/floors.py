@@ -7,7 +7,6 @@ from typing import Any
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.errors import DeintError, NotApplicable
 from deint_env.policies import policy_rng
 
 
@@ -41,8 +40,6 @@ class NearestPrior:
         self.gate = gate
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable("nearest-prior needs priors; blind scenarios have none")
         self._priors = priors
         self._phase = priors.phase.copy()
         self._unknown = ~np.isfinite(self._phase)

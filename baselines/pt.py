@@ -52,7 +52,6 @@ from deint_env.receiver import is_spurious
 from baselines.kalman import (Block, DLMModel, innovation, overdue, phase_estimate, predict, prior_block,
                               update)
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
 from deint_env.policies import policy_rng
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
@@ -85,9 +84,6 @@ class ProbabilisticTeacher:
         self.coast, self.gate, self.reset_after = bool(coast), float(gate), reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable(f"the {self.teacher} teacher (pt-prior, pt-post, dokf) needs priors; blind "
-                             "scenarios have none")
         self.n = priors.n_labels
         self.model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
         self.blocks = prior_block(priors)  # arrays of N: the filtered (T, tau) of every source

@@ -173,8 +173,6 @@ class TDCDeinterleaver:
         self._data = None if data is None else np.asarray(data, dtype=np.float32)
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if not priors.blind:
-            raise NotApplicable("tdc models cluster pulses into emitters: blind scenarios only (no prior tracks)")
         self.n_labels = priors.n_labels
         self._amp = bool(info.get("has_amplitude", True))
         n = info.get("n_pulses")

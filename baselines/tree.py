@@ -59,8 +59,6 @@ class TreeSearch:
         self.lag = max_pulses - 1
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable("tree needs priors (an anchored scenario)")
         if info.get("n_pulses", 0) > self.max_pulses:
             raise NotApplicable(f"tree labels trains of at most {self.max_pulses} pulses (max_pulses); this episode "
                              f"has {info['n_pulses']}")

@@ -478,16 +478,23 @@ def cmd_suites(args: argparse.Namespace) -> int:
 
 def _add_policies(sub) -> None:
     p = sub.add_parser("policies", help="list the registered policies",
-                       description="Every registered policy; oracles (which see the truth) are marked.")
+                       description="Every registered policy with its kind (reference, learned, oracle: sees the "
+                                   "truth, adapter: runs a model you name), the modes it plays, its version and "
+                                   "limits; * marks the leaderboards' default set.")
     p.set_defaults(func=cmd_policies)
 
 
 def cmd_policies(args: argparse.Namespace) -> int:
-    from deint_env.policies import list_policies
+    from deint_env.policies import default_policies, list_policies
 
-    print(_table(["policy", "kind", "needs", "description"],
-                 [[p.name, "oracle" if p.oracle else "policy", f"[{p.extra}]" if p.extra else "-", p.description]
-                  for p in list_policies()]))
+    default = set(default_policies())
+
+    def limits(p) -> str:
+        return ", ".join(f"{k}={v}" for k, v in vars(p.limits).items() if v is not None) or "-"
+
+    print(_table(["policy", "kind", "modes", "version", "limits", "needs", "description"],
+                 [[p.name + ("*" if p.name in default else ""), p.kind, "+".join(p.modes), str(p.version), limits(p),
+                   f"[{p.extra}]" if p.extra else "-", p.description] for p in list_policies()]))
     return 0
 
 

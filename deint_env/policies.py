@@ -1,29 +1,48 @@
-"""The policy protocol (DESIGN section 5) and the policy registry.
+"""The policy protocol (DESIGN section 5) and the one policy registry.
 
 A policy has `reset(priors, info)` and `act(obs) -> label`, declares the `lag` it needs, and may
 expose `estimates()` -> {"period": array, "phase": array} (one entry per label track) for the
 estimation metrics.  Evaluation hands a policy only the observations and the public priors; an
-*oracle* (`oracle = True`, e.g. `genie`) is also handed the whole episode in `info["episode"]` and is
+*oracle* (kind "oracle", e.g. `genie`) is also handed the whole episode in `info["episode"]` and is
 reported as a ceiling, never as a method.  Stochastic policies draw from `info["policy_seed"]`.
 
-Every policy has a registered name and keyword parameters; on the command line it is written
-`NAME` or `NAME:key=value,key=value` (e.g. `fdp:lookahead=4`).
+Every policy has a registered name, metadata (`PolicyInfo`: kind, the modes it plays, limits, a
+version, a description) and keyword parameters; on the command line it is written `NAME` or
+`NAME:key=value,key=value` (e.g. `fdp:lookahead=4`).
+
+Registration.  A provider is a module attribute holding a sequence of `PolicyInfo`s, named in the
+entry point group `deint_bench.policies` of its distribution's metadata, e.g. in pyproject.toml::
+
+    [project.entry-points."deint_bench.policies"]
+    my-policies = "my_package.policies:POLICIES"
+
+deint-bench's own providers (`baselines:POLICIES`, `agents:POLICIES`) are declared there too, and
+are also loaded by name (`BUILTIN_PROVIDERS`) so that a source tree works without being installed.
+Factories are "module:attribute" strings imported on first use, so listing policies imports neither
+torch nor a third party's model code; building a third-party policy runs that package's code.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
-from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+import math
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
 
-# Modules whose import registers their policies (baselines first: the floors and the ceiling).
-PROVIDERS = ("baselines", "agents")
+GROUP = "deint_bench.policies"
+# The providers shipped in this repository (also declared under GROUP in pyproject.toml; a test checks
+# that the two agree): loaded even when the installed metadata is older than the source tree.
+BUILTIN_PROVIDERS = {"baselines": "baselines:POLICIES", "agents": "agents:POLICIES"}
+KINDS = ("reference", "learned", "oracle", "adapter")
+MODES = ("anchored", "blind")
+MAX_SEED = 2**63
 
 
 @runtime_checkable
@@ -36,12 +55,43 @@ class Policy(Protocol):
 
 
 @dataclass(frozen=True)
+class Limits:
+    """What a policy's defaults can play (None: no limit); parameters may move them (tree's max_pulses)."""
+
+    max_sources: int | None = None
+    max_pulses: int | None = None
+
+
+@dataclass(frozen=True)
 class PolicyInfo:
+    """A registered policy.  `version` is bumped whenever the policy's labels change for the same
+    episode and parameters: results are keyed on it.  `extra`: the optional dependency set it needs."""
+
     name: str
     factory: Callable[..., Policy] | str  # a callable, or "module:attribute" imported on first use
-    oracle: bool = False
+    kind: str = "reference"
+    modes: tuple[str, ...] = MODES
+    limits: Limits = field(default_factory=Limits)
+    version: int = 1
     description: str = ""
-    extra: str | None = None  # the optional dependency set it needs, e.g. "rl"
+    extra: str | None = None
+    provider: str = ""  # the entry point (or "register_policy") it came from
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"policy {self.name!r}: kind={self.kind!r} is invalid: one of {', '.join(KINDS)}")
+        if not self.modes or any(m not in MODES for m in self.modes):
+            raise ValueError(f"policy {self.name!r}: modes={self.modes!r} is invalid: a non-empty subset of {MODES}")
+        if isinstance(self.version, bool) or not isinstance(self.version, int) or self.version < 1:
+            raise ValueError(f"policy {self.name!r}: version={self.version!r} is invalid: an integer >= 1")
+
+    @property
+    def oracle(self) -> bool:
+        return self.kind == "oracle"
+
+    @property
+    def learned(self) -> bool:
+        return self.kind == "learned"
 
     def load(self) -> Callable[..., Policy]:
         if callable(self.factory):
@@ -58,22 +108,50 @@ _REGISTRY: dict[str, PolicyInfo] = {}
 _loaded = False
 
 
-def register_policy(name: str, factory: Callable[..., Policy] | str, *, oracle: bool = False,
-                    description: str = "", extra: str | None = None) -> None:
-    """Register a policy factory under `name` (idempotent for the same factory)."""
-    info = PolicyInfo(name, factory, oracle, description, extra)
-    old = _REGISTRY.get(name)
-    if old is not None and old.factory != factory:
-        raise ValueError(f"policy name {name!r} is already registered to {old.factory!r}")
-    _REGISTRY[name] = info
+def _add(info: PolicyInfo) -> None:
+    old = _REGISTRY.get(info.name)
+    if old is not None and (old.factory, old.kind, old.modes) != (info.factory, info.kind, info.modes):
+        raise DeintError(f"policy name {info.name!r} is registered twice: by {old.provider or 'register_policy'} "
+                         f"({old.factory!r}) and by {info.provider or 'register_policy'} ({info.factory!r})")
+    _REGISTRY[info.name] = info
+
+
+def register_policy(name: str, factory: Callable[..., Policy] | str, **metadata: Any) -> None:
+    """Register a policy at run time (notebooks, tests); `metadata`: the other `PolicyInfo` fields."""
+    _add(PolicyInfo(name, factory, provider="register_policy", **metadata))
+
+
+def providers() -> dict[str, str]:
+    """Provider name -> "module:attribute": the entry points of GROUP, and the built-in ones."""
+    found = {ep.name: ep.value for ep in entry_points(group=GROUP)}
+    for name, value in BUILTIN_PROVIDERS.items():
+        if found.setdefault(name, value) != value:
+            raise DeintError(f"entry point {name!r} of {GROUP} names {found[name]}, not deint-bench's {value}")
+    return found
+
+
+def _load_provider(name: str, value: str) -> None:
+    module, _, attr = value.partition(":")
+    where = f"policy provider {name!r} ({value}, entry point group {GROUP})"
+    try:
+        infos = getattr(importlib.import_module(module), attr)
+    except ImportError as e:
+        raise DeintError(f"{where}: cannot import {e.name or module}") from None
+    except AttributeError:
+        raise DeintError(f"{where}: {module} has no attribute {attr!r}") from None
+    if isinstance(infos, (str, bytes)) or not isinstance(infos, Sequence) or \
+            not all(isinstance(i, PolicyInfo) for i in infos):
+        raise DeintError(f"{where}: must be a sequence of deint_env.policies.PolicyInfo")
+    for info in infos:
+        _add(PolicyInfo(**{**info.__dict__, "provider": name}))
 
 
 def _load_providers() -> None:
     global _loaded
     if not _loaded:
         _loaded = True
-        for module in PROVIDERS:
-            importlib.import_module(module)
+        for name, value in sorted(providers().items(), key=lambda kv: (kv[0] not in BUILTIN_PROVIDERS, kv[0])):
+            _load_provider(name, value)
 
 
 def list_policies() -> list[PolicyInfo]:
@@ -88,18 +166,29 @@ def policy_info(name: str) -> PolicyInfo:
     return _REGISTRY[name]
 
 
-def _parse_value(text: str) -> Any:
+def default_policies() -> list[str]:
+    """The policies leaderboards and benchmarks run by default: every registered one except adapters
+    (they need a model named) and those whose defaults have a pulse limit (tree: short trains only)."""
+    return [p.name for p in list_policies() if p.kind != "adapter" and p.limits.max_pulses is None]
+
+
+def _parse_value(text: str, where: str) -> Any:
     low = text.lower()
     if low in ("true", "false"):
         return low == "true"
     if low in ("none", "null"):
         return None
-    for cast in (int, float):
-        try:
-            return cast(text)
-        except ValueError:
-            pass
-    return text
+    if text.lstrip("+-").isdigit():
+        if len(text.lstrip("+-")) > 19 or abs(int(text)) >= MAX_SEED:
+            raise DeintError(f"{where} is out of range: integers in policy parameters are below 2^63 in size")
+        return int(text)
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    if not math.isfinite(value):
+        raise DeintError(f"{where} is invalid: numbers in policy parameters are finite")
+    return value
 
 
 def parse_policy_spec(spec: str) -> tuple[str, dict[str, Any]]:
@@ -110,9 +199,12 @@ def parse_policy_spec(spec: str) -> tuple[str, dict[str, Any]]:
     kwargs: dict[str, Any] = {}
     for item in filter(None, (s.strip() for s in rest.split(","))):
         key, eq, value = item.partition("=")
-        if not eq or not key.strip().isidentifier():
+        key = key.strip()
+        if not eq or not key.isidentifier():
             raise DeintError(f"policy parameter {item!r} in {spec!r} is invalid: write key=value")
-        kwargs[key.strip()] = _parse_value(value.strip())
+        if key in kwargs:
+            raise DeintError(f"policy parameter {key!r} is given twice in {spec!r}; give each parameter once")
+        kwargs[key] = _parse_value(value.strip(), f"policy parameter {item!r} in {spec!r}")
     return name.strip(), kwargs
 
 
@@ -135,19 +227,48 @@ def make_policy(spec: str) -> Policy:
             if key not in allowed:
                 raise DeintError(f"policy {name!r} has no parameter {key!r}; its parameters: "
                                  f"{', '.join(allowed) or 'none'}")
+    if "seed" in kwargs:
+        check_policy_seed(kwargs["seed"], f"policy {spec!r}: seed")
     try:
         policy = factory(**kwargs)
-    except (TypeError, ValueError) as e:
+    except (TypeError, ValueError, OverflowError) as e:
         raise DeintError(f"policy {spec!r}: {e}") from None
     if not isinstance(policy, Policy):
         raise DeintError(f"policy {name!r} does not implement reset(priors, info), act(obs) and lag")
+    _check_modes(policy, info)
     return policy
+
+
+def _check_modes(policy: Policy, info: PolicyInfo) -> None:
+    """The one check of the modes a policy plays, from the registry: its `reset` refuses a scenario of
+    another mode as not applicable, before the policy sees it.  (An instance attribute wraps the
+    bound method, so the policy stays itself: its type, attributes and `act` are untouched.)"""
+    if set(info.modes) == set(MODES):
+        return
+    reset = policy.reset
+
+    def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
+        mode = "blind" if priors.blind else "anchored"
+        if mode not in info.modes:
+            why = ("needs priors: it plays anchored scenarios only, and blind scenarios have none" if mode == "blind"
+                   else "plays blind scenarios only: it clusters pulses and has no prior tracks")
+            raise NotApplicable(f"policy {info.name!r} {why}")
+        reset(priors, episode_info)
+
+    policy.reset = checked_reset  # type: ignore[method-assign]
 
 
 def is_oracle(spec: str) -> bool:
     return policy_info(parse_policy_spec(spec)[0]).oracle
 
 
+def check_policy_seed(seed: object, what: str = "policy seed") -> int:
+    """A policy seed is an integer in [0, 2^63), as numpy's generators take it."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < MAX_SEED:
+        raise DeintError(f"{what}={seed!r} is invalid: an integer in [0, 2^63)")
+    return int(seed)
+
+
 def policy_rng(info: dict[str, Any], seed: int | None) -> np.random.Generator:
     """A policy's generator: its own `seed` parameter if given, else the runner's `policy_seed`."""
-    return np.random.default_rng(seed if seed is not None else info.get("policy_seed", 0))
+    return np.random.default_rng(check_policy_seed(seed if seed is not None else info.get("policy_seed", 0)))

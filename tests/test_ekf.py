@@ -143,7 +143,7 @@ def test_registered_and_validated():
             make_policy(bad)
     blind = simulate(find_entry("blind-v0/blind-n2to2-jitter0.1").spec.replace(n_pulses=50), 0)
     with pytest.raises(DeintError, match="needs priors"):
-        play(EKFBank(), blind)
+        play(make_policy("ekf-bank"), blind)
 
 
 @pytest.mark.parametrize("name", ["cm00-tables-1-2", "cm00-fig6-table3", "cm00-tables-4-5"])

@@ -17,9 +17,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from deint_env import policies
 from deint_env.errors import DeintError
 from deint_env.leaderboard import stats
-from deint_env.policies import list_policies
 from deint_env.runner import evaluate, json_ready, read_records
 from deint_env.suites import TAGS, SuiteEntry, load_suite
 
@@ -32,21 +32,9 @@ MEANS = ("accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari", "us_per_
 MEDIANS = ("period_rel_error", "period_crlb_ratio")  # heavy-tailed: a lost track's error is huge
 
 
-SHORT_TRAINS_ONLY = ("tree",)  # the exhaustive search labels <= 20 pulses: no published scenario is that short
-
-
 def default_policies() -> list[str]:
-    """The reference policies: every policy registered by `baselines` (non-learned) plus `ppo`.
-    Adapters that need a model named to run (e.g. `tdc`) and the short-train tree search are left out."""
-    out = []
-    for info in list_policies():
-        factory = info.factory
-        module = factory.split(":")[0] if isinstance(factory, str) else factory.__module__
-        if info.name in SHORT_TRAINS_ONLY:
-            continue
-        if module.split(".")[0] == "baselines" or info.name == "ppo":
-            out.append(info.name)
-    return out
+    """The reference policies, as the policy registry names them (`deint_env.policies.default_policies`)."""
+    return policies.default_policies()
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,6 @@ LEADERBOARD_SUITES = ("paper-v0", "core-v0", "robust-v0", "agile-v0")
 DEFAULT_ROOT = Path("leaderboards")
 RESULTS = "results.jsonl"
 TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
-TAUS = np.linspace(0.0, 1.0, 51)  # performance-profile thresholds
 MEANS = ("accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari", "us_per_pulse", "lag")
 MEDIANS = ("period_rel_error", "period_crlb_ratio")  # heavy-tailed: a lost track's error is huge
 
@@ -206,7 +205,7 @@ def aggregate(records: list[dict[str, Any]], scope: Scope, reps: int = 2000,
             if r.get("score") is not None:
                 strata.setdefault(r["scenario"], []).append(r["score"])
         strata_of[policy] = strata
-        est, profiles[policy] = stats.estimates(strata, groups, TAUS, reps=reps, seed=seed)
+        est, profiles[policy] = stats.estimates(strata, groups, stats.TAUS, reps=reps, seed=seed)
         row: dict[str, Any] = {
             "policy": policy, "kind": _kind(recs[0]), "oracle": bool(recs[0].get("oracle")),
             "submitted": bool(recs[0].get("submitted")), "episodes": len(recs), "played": len(played),

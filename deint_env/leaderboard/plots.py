@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from deint_env.leaderboard.build import TAUS
+from deint_env.leaderboard.stats import TAUS
 from deint_env.leaderboard.render import display_name, tidy
 
 

@@ -26,6 +26,7 @@ from deint_env.errors import DeintError
 
 CONFIDENCE = 0.95
 NAN3 = (math.nan, math.nan, math.nan)
+TAUS = np.linspace(0.0, 1.0, 51)  # performance-profile thresholds (build computes them, plots draws them)
 
 
 def rliable() -> tuple[Any, Any]:

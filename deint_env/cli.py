@@ -52,16 +52,30 @@ def _status(text: str) -> None:
     print(text, file=sys.stderr)
 
 
-def _check_outputs(*paths: str | None) -> None:
-    """Fail before anything is written when an output's directory is missing."""
-    for path in filter(None, paths):
+def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) -> None:
+    """Fail before anything is read or written when an output's directory is missing, or an output is
+    the same file as an input or another output: by resolved path (symlinks, '..', './'), and for
+    existing files by device and inode (hard links).  Keys are the options that name the paths."""
+    named_in = [(k, p) for k, p in inputs.items() if p]
+    named_out = [(k, p) for k, p in outputs.items() if p]
+    for opt, path in named_out:
         if not Path(path).resolve().parent.is_dir():
             raise DeintError(f"{path}: cannot write: directory {Path(path).parent} does not exist")
+    for i, (opt, path) in enumerate(named_out):
+        for other_opt, other in named_in + named_out[:i]:
+            if _same_file(path, other):
+                role = "output" if (other_opt, other) in named_out else "input"
+                raise DeintError(f"{opt} {path} is the same file as the {role} {other_opt} {other}; "
+                                 f"name a different file for each input and output")
 
 
 def _same_file(a: str, b: str) -> bool:
-    return os.path.abspath(a) == os.path.abspath(b) or (
-        os.path.exists(a) and os.path.exists(b) and os.path.samefile(a, b))
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -106,7 +120,8 @@ def _scenario(text: str):
 def cmd_simulate(args: argparse.Namespace) -> int:
     from deint_env.simulate import simulate
 
-    _check_outputs(args.output, args.priors_out, args.true_priors_out)
+    _check_paths({"SCENARIO": args.scenario if os.path.isfile(args.scenario) else None},
+                 {"-o": args.output, "--priors-out": args.priors_out, "--true-priors-out": args.true_priors_out})
     spec = _scenario(args.scenario)
     episode = simulate(spec, args.seed)
     # Every output is formatted (and so validated) before any is written.
@@ -114,9 +129,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.priors_out:
         outputs.append((args.priors_out, formats.format_priors(episode.priors, where=args.priors_out)))
     if args.true_priors_out:
-        outputs.append((args.true_priors_out, formats.format_priors(formats.true_priors(episode), where=args.true_priors_out)))
-    for path, text in outputs:
-        formats.write_text(path, text)
+        true = formats.true_priors(episode)
+        outputs.append((args.true_priors_out, formats.format_priors(true, where=args.true_priors_out)))
+    formats.write_all(outputs)  # all or none
     _status(f"deint: {len(episode)} pulses of {spec.name} (seed {args.seed}) -> "
             + ", ".join(path for path, _ in outputs))
     return 0
@@ -198,12 +213,11 @@ def _policy_with_lag(spec: str, lag: int | None):
 
 
 def cmd_label(args: argparse.Namespace) -> int:
-    from deint_env.policies import is_oracle
+    from deint_env.policies import check_policy_seed, is_oracle
     from deint_env.runner import play
 
-    if _same_file(args.output, args.pulses):
-        raise DeintError(f"-o {args.output} would overwrite the pulse file; name another output file")
-    _check_outputs(args.output)
+    _check_paths({"PULSES": args.pulses, "--priors": args.priors}, {"-o": args.output})
+    check_policy_seed(args.seed, "--seed")
     priors = _cli_priors(args)
     policy = _policy_with_lag(args.policy, args.lag)
     train = None
@@ -576,9 +590,7 @@ def _add_tdc(sub) -> None:
 
 
 def cmd_tdc_convert(args: argparse.Namespace) -> int:
-    if _same_file(args.input, args.output):
-        raise DeintError(f"{args.output} would overwrite the input; name another output file")
-    _check_outputs(args.output)
+    _check_paths({"INPUT": args.input}, {"OUTPUT": args.output})
     _status("deint: " + tdc.convert(args.input, args.output, "float64" if args.float64 else "float32"))
     return 0
 
@@ -748,8 +760,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `deint suites | head`: the reader left; not an error of ours
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except OSError as e:  # a file the io layer does not open itself (e.g. a results file)
-        print(f"deint: error: {e}", file=sys.stderr)
+    except OSError as e:  # a file the formats layer does not open itself (e.g. a results file)
+        what = f"{e.filename}: {e.strerror}" if e.filename and e.strerror else str(e)
+        print(f"deint: error: {what}", file=sys.stderr)
         return EXIT_ERROR
 
 

@@ -214,7 +214,7 @@ def test_failed_label_keeps_the_old_output(capsys, tmp_path, simulated):
     before = open("l.csv").read()
     fails(capsys, "label", "p.csv", "--policy", "nosuch", "--priors", "pr.json", "-o", "l.csv", expected="nosuch")
     fails(capsys, "label", "p.csv", "--policy", "random", "--priors", "pr.json", "-o", "p.csv",
-          expected="would overwrite the pulse file")
+          expected="is the same file as the input PULSES")
     assert open("l.csv").read() == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 

@@ -1,9 +1,11 @@
 """Reading and writing whole files safely: the one atomic writer every output goes through (pulse,
 label, priors, TDC and leaderboard files), and whole-file reads that fail with one line.
 
-Every output is written to a temporary file in the target's directory and renamed over the target
-only when complete: an error, a full disk or an interrupt never leaves a half-written file nor
-clobbers a good one, and the error names the file.
+Every output is written to a temporary file in the target's directory, synced, and renamed over the
+target only when complete: an error, a full disk or an interrupt never leaves a half-written file nor
+clobbers a good one, and the error names the file (`cannot write out.csv: No space left on device`).
+`write_all` publishes several files together: all are written before any is renamed, so a failure
+changes none of them.
 """
 
 from __future__ import annotations
@@ -12,34 +14,89 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator, TextIO
+from typing import Iterator, Sequence, TextIO
 
 from deint_env.errors import DeintError
 
 PathLike = str | os.PathLike
+# The largest array an input file may declare (checked against its declared shape and item size before
+# anything is allocated): a few-kilobyte compressed file can otherwise ask for tens of GiB.
+MAX_ARRAY_BYTES = 1 << 30
+
+
+def check_array_size(shape: tuple[int, ...], itemsize: int, what: str) -> None:
+    """Refuse an array whose declared size exceeds MAX_ARRAY_BYTES (one line saying the limit)."""
+    n = 1
+    for d in shape:
+        n *= int(d)
+    if n * itemsize > MAX_ARRAY_BYTES:
+        raise DeintError(f"{what} declares shape {tuple(int(d) for d in shape)} ({n * itemsize / 2**30:.3g} GiB); "
+                         f"the limit is {MAX_ARRAY_BYTES / 2**30:g} GiB per array")
+
+
+def _cannot_write(path: PathLike, e: OSError) -> DeintError:
+    return DeintError(f"cannot write {path}: {e.strerror or e}")
+
+
+def _temporary(path: Path) -> Path:
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as e:
+        raise _cannot_write(path, e) from None
+    os.close(fd)
+    return Path(tmp)
+
+
+def _finish(tmp: Path, path: Path) -> None:
+    """Sync a written temporary file and give it the mode a plain open() would (mkstemp makes 0600)."""
+    with open(tmp, "rb+") as f:
+        os.fsync(f.fileno())
+    os.chmod(tmp, _file_mode(path))
 
 
 @contextlib.contextmanager
 def atomic_path(path: PathLike) -> Iterator[Path]:
-    """A temporary path beside `path` to write to; it replaces `path` (synced, with the mode a plain
-    open() gives) only if the block succeeds, and is removed otherwise."""
+    """A temporary path beside `path` to write to (for writers that open files themselves, e.g. h5py);
+    it replaces `path` only if the block succeeds, and is removed otherwise."""
     path = Path(path)
+    tmp = _temporary(path)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as e:
-        raise DeintError(f"cannot write {path}: {e.strerror or e}") from None
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        with open(tmp, "rb+") as f:
-            os.fsync(f.fileno())
-        os.chmod(tmp, _file_mode(path))  # mkstemp makes 0600 files
+        yield tmp
+        _finish(tmp, path)
         os.replace(tmp, path)
     except BaseException as e:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         if isinstance(e, OSError):
-            raise DeintError(f"cannot write {path}: {e.strerror or e}") from None
+            raise _cannot_write(path, e) from None
+        raise
+
+
+def write_all(files: Sequence[tuple[PathLike, str | bytes]]) -> None:
+    """Write every (path, text or bytes) together: each to a temporary file beside its target, then all
+    renamed over their targets; if any write fails, no target changes and the error names its file."""
+    temps: list[tuple[Path, Path]] = []
+    current: PathLike = ""
+    try:
+        for current, data in files:
+            path = Path(current)
+            temps.append((_temporary(path), path))
+            if isinstance(data, str):
+                with open(temps[-1][0], "w", encoding="utf-8", newline="") as f:
+                    f.write(data)
+            else:
+                temps[-1][0].write_bytes(data)
+            _finish(*temps[-1])
+        while temps:
+            tmp, current = temps[0]
+            os.replace(tmp, current)
+            temps.pop(0)
+    except BaseException as e:
+        for tmp, _ in temps:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise _cannot_write(current, e) from None
         raise
 
 
@@ -60,13 +117,11 @@ def _file_mode(path: Path) -> int:
 
 
 def write_text(path: PathLike, text: str) -> None:
-    with atomic_write(path) as f:
-        f.write(text)
+    write_all([(path, text)])
 
 
 def write_bytes(path: PathLike, data: bytes) -> None:
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        f.write(data)
+    write_all([(path, data)])
 
 
 def read_bytes(path: PathLike, kind: str) -> bytes:

@@ -15,7 +15,7 @@ spurious.  Inside the package the spurious label is `n_labels` (the env's action
 takes env labels and `read_labels` returns file labels; `from_file_labels` maps them back.
 
 Floats are written with `repr` (the shortest string that reads back to the same float64), so round
-trips are exact.  Files are written through `files.atomic_write`.  Every problem with an input is one
+trips are exact.  Files are written through `files.write_text` (atomic).  Every problem with an input is one
 `DeintError` line naming the file, the line and what is allowed.
 """
 

@@ -69,7 +69,7 @@ import numpy as np
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError
 from deint_env.formats import pulse_csv
-from deint_env.formats.files import PathLike, atomic_path, write_text
+from deint_env.formats.files import PathLike, atomic_path, check_array_size, write_text
 from deint_env.scenario import MAX_SOURCES
 
 SUFFIXES = (".h5", ".hdf5")
@@ -318,31 +318,67 @@ def _hdf5(path: Path) -> Iterator[Any]:
 
 
 def read_tdc(path: PathLike) -> TDCTrain:
-    """Read and check a TDC pulse-train file; every problem is one `DeintError` line."""
+    """Read and check a TDC pulse-train file; every problem is one `DeintError` line.  Only the objects
+    a TDC file holds are opened, each through a hard link (external and soft links are refused, so no
+    other file is opened and no link loop is followed), and every dataset's declared size is checked
+    against `files.MAX_ARRAY_BYTES` before it is read."""
     h5py = _h5py()
     path = Path(path)
     with _hdf5(path) as f:
-        if "data" not in f or not isinstance(f["data"], h5py.Dataset):
-            raise DeintError(f"{path}: no 'data' dataset; a TDC file holds data (seq_len x features), "
-                             f"labels and metadata/feature_names")
-        meta = f.get("metadata")
+        data = _dataset(h5py, path, f, "data", "a TDC file holds data (seq_len x features), labels and "
+                                               "metadata/feature_names")
+        meta = _member(h5py, path, f, "metadata")
         if not isinstance(meta, h5py.Group):
             raise DeintError(f"{path}: no 'metadata' group; a TDC file names its data columns in "
                              f"metadata/feature_names")
-        if "feature_names" not in meta or not isinstance(meta["feature_names"], h5py.Dataset):
-            raise DeintError(f"{path}: no 'metadata/feature_names' dataset; it names the data columns")
-        raw = np.atleast_1d(meta["feature_names"][()])
+        feature_names = _dataset(h5py, path, meta, "feature_names", "it names the data columns")
+        raw = np.atleast_1d(_read(path, feature_names, "metadata/feature_names"))
         names = tuple(x.decode("utf-8", "replace") if isinstance(x, bytes) else str(x) for x in raw.tolist())
-        data = f["data"][()]
+        values = _read(path, data, "data")
         labels = None
-        if "labels" in f:
-            if not isinstance(f["labels"], h5py.Dataset):
-                raise DeintError(f"{path}: 'labels' is a group; it must be a dataset of emitter ids")
-            labels = f["labels"][()]
+        if _member(h5py, path, f, "labels") is not None:
+            labels = _read(path, _dataset(h5py, path, f, "labels", "it holds the emitter ids"), "labels")
         attrs = {k: _plain(v) for k, v in meta.attrs.items()}
-    if not isinstance(data, np.ndarray):
+    if not isinstance(values, np.ndarray):
         raise DeintError(f"{path}: data is a scalar; TDC data is 2-D (seq_len, n_features)")
-    return TDCTrain(data, names, labels, attrs).validated(str(path))
+    return TDCTrain(values, names, labels, attrs).validated(str(path))
+
+
+def _member(h5py, path: Path, group: Any, name: str) -> Any:
+    """`group[name]` if it is there through a hard link, None if it is absent; other links are refused."""
+    link = group.get(name, getlink=True)
+    if link is None:
+        return None
+    where = f"{group.name.rstrip('/')}/{name}".lstrip("/")
+    if isinstance(link, h5py.ExternalLink):
+        raise DeintError(f"{path}: '{where}' is an external link (to {link.filename}:{link.path}); a TDC file "
+                         f"must hold its data itself")
+    if isinstance(link, h5py.SoftLink):
+        raise DeintError(f"{path}: '{where}' is a soft link (to {link.path}); a TDC file's objects are "
+                         f"stored under their own names")
+    return group[name]
+
+
+def _dataset(h5py, path: Path, group: Any, name: str, hint: str) -> Any:
+    obj = _member(h5py, path, group, name)
+    where = f"{group.name.rstrip('/')}/{name}".lstrip("/")
+    if obj is None:
+        raise DeintError(f"{path}: no '{where}' dataset; {hint}")
+    if not isinstance(obj, h5py.Dataset):
+        raise DeintError(f"{path}: '{where}' is a group; it must be a dataset ({hint})")
+    if obj.is_virtual or obj.external:
+        raise DeintError(f"{path}: '{where}' stores its data in other files (a virtual or external dataset); "
+                         f"a TDC file must hold its data itself")
+    return obj
+
+
+def _read(path: Path, dataset: Any, where: str) -> Any:
+    """A dataset's values, its declared size checked first."""
+    check_array_size(dataset.shape or (), dataset.dtype.itemsize, f"{path}: '{where}'")
+    try:
+        return dataset[()]
+    except (OSError, ValueError) as e:
+        raise DeintError(f"{path}: '{where}' cannot be read ({str(e).splitlines()[0]})") from None
 
 
 def _plain(v: Any) -> Any:

@@ -35,8 +35,6 @@ import io
 import json
 import os
 import re
-import zipfile
-import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +44,8 @@ import numpy as np
 
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.formats import from_file_labels, read_bytes, to_file_labels
+from deint_env.formats.json_files import check_depth
+from deint_env.formats.npz import read_npz
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
 from deint_env.leaderboard.render import write_file
 from deint_env.progress import Progress
@@ -108,12 +108,15 @@ def _read_jsonl(path: Path, raw: bytes) -> tuple[dict[str, Any], list[Item]]:
     for n, line in enumerate(lines, 1):
         if not line.strip():
             continue
+        check_depth(line, f"{path}: line {n}")
         try:
             obj = json.loads(line, parse_constant=_NonFinite)
         except json.JSONDecodeError as e:
             torn = " (the file looks truncated)" if n == len(lines) else ""
             raise DeintError(f"{path}: line {n}{_guess_episode(line)}: is not valid JSON ({e.msg} at column "
                              f"{e.colno}){torn}") from None
+        except ValueError as e:  # an integer past Python's digit limit
+            raise DeintError(f"{path}: line {n}{_guess_episode(line)}: {e}") from None
         if not isinstance(obj, dict):
             raise DeintError(f"{path}: line {n}: is not a JSON object; each line is "
                              '{"scenario": NAME, "seed": S, "labels": [...]}')
@@ -141,27 +144,10 @@ def _check_header(path: Path, where: str, obj: dict[str, Any]) -> dict[str, Any]
     return obj
 
 
-def _npz_arrays(path: Path, raw: bytes) -> dict[str, np.ndarray | str]:
-    """Every array of an NPZ archive; an array that would need pickle is replaced by that problem."""
-    out: dict[str, np.ndarray | str] = {}
-    try:
-        with np.load(io.BytesIO(raw), allow_pickle=False) as z:
-            for key in z.files:
-                try:
-                    out[key] = z[key]
-                except ValueError as e:
-                    if "allow_pickle" not in str(e):
-                        raise
-                    out[key] = "the array holds Python objects, which only pickle could load"
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
-        raise DeintError(f"{path}: is not a readable NPZ archive ({e}); is it truncated?") from None
-    return out
-
-
 def _read_npz(path: Path, raw: bytes) -> tuple[dict[str, Any], list[Item]]:
     header: dict[str, Any] = {}
     items = []
-    for key, arr in _npz_arrays(path, raw).items():
+    for key, arr in read_npz(raw, str(path)).items():
         where = f"array {key!r}"
         m = re.fullmatch(r"(.+)/(\d+)", key)
         if key in HEADER_KEYS:

@@ -8,7 +8,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from deint_env.episode import Episode, Priors, Truth
 from deint_env.errors import DeintError
-from deint_env.policies import Policy, list_policies, make_policy, register_policy
+from deint_env.policies import Policy, PolicyInfo, list_policies, make_policy, register_policy
 from deint_env.registration import env_ids, register_envs
 from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
 from deint_env.simulate import simulate, simulate_many
@@ -22,7 +22,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
 register_envs()
 
 __all__ = [
-    "DeintError", "Episode", "Modulation", "Policy", "PriorSpec", "Priors", "Range", "ScenarioSpec", "SourceSpec",
-    "Truth", "env_ids", "list_policies", "list_suites", "load_suite", "make_policy", "register_policy",
+    "DeintError", "Episode", "Modulation", "Policy", "PolicyInfo", "PriorSpec", "Priors", "Range", "ScenarioSpec",
+    "SourceSpec", "Truth", "env_ids", "list_policies", "list_suites", "load_suite", "make_policy", "register_policy",
     "resolve_scenario", "simulate", "simulate_many", "__version__",
 ]

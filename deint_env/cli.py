@@ -706,6 +706,10 @@ def cmd_leaderboard_submit(args: argparse.Namespace) -> int:
     from deint_env.leaderboard import submit
 
     _check_reps(args.reps)
+    board_dir = Path(args.root) / args.suite
+    if Path(args.file).resolve().parent == board_dir.resolve():
+        raise DeintError(f"FILE {args.file} lies in the leaderboard directory {board_dir}, whose files submit "
+                         f"rewrites; keep submissions elsewhere")
     policy, board = submit(args.file, args.suite, args.name, root=args.root, reps=args.reps,
                            progress=not args.no_progress)
     _leaderboard_report(board, Path(args.root) / args.suite)

@@ -84,6 +84,13 @@ def test_tdc_convert_cannot_overwrite_its_input(capsys, tmp_path, pulses):
     refused(capsys, tmp_path, "tdc", "convert", "p.csv", "same.h5", expected="OUTPUT same.h5 is the same file")
 
 
+def test_a_submission_cannot_live_in_the_board_it_rewrites(capsys, tmp_path):
+    os.makedirs("board/core-v0")
+    Path("board/core-v0/results.jsonl").write_text("")
+    refused(capsys, tmp_path, "leaderboard", "submit", "board/core-v0/results.jsonl", "--suite", "core-v0",
+            "--root", "board", expected="lies in the leaderboard directory board/core-v0")
+
+
 # ---- JSON: magnitude and depth ---------------------------------------------------------------------------
 @pytest.mark.parametrize("text, expected", [
     ('{"period": [1' + "0" * 400 + "]}", "has 401 digits; the limit is 19 digits"),

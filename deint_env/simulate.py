@@ -4,7 +4,8 @@ Order of effects, as a receiver sees them: each source emits on its own (modulat
 jittered) schedule inside its on-windows; each emission is independently missed with
 `missing_prob`; the survivors get white Gaussian TOA noise (sigma_w); a Poisson stream of spurious
 pulses is added; everything is sorted by TOA; pulses closer than `coincidence_resolution` to their
-predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask); the first
+predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask; with
+`merge="emission"` the noise-free arrivals are compared instead, see `_merge_at_emission`); the first
 `n_pulses` are kept; amplitude measurement noise is added.
 
 Every random stream is keyed by (seed, role, source), so the same spec and seed give the same
@@ -329,7 +330,9 @@ def _generate(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], g: _Group, ho
     if spec.coincidence_resolution > 0:
         starts = np.ones(toa.shape, bool)  # the first pulse of each run closer than the resolution
         with np.errstate(invalid="ignore"):  # inf - inf in the padding, which is past the row's cut
-            starts[:, 1:] = np.diff(toa, axis=1) >= spec.coincidence_resolution
+            gap = np.diff(toa, axis=1)
+            # merge="emission": the runs were formed before the noise and share one TOA (_merge_at_emission)
+            starts[:, 1:] = gap > 0 if spec.merge == "emission" else gap >= spec.coincidence_resolution
         if cut.min() < seen:
             starts &= np.arange(seen) < cut[:, None]
         n_runs = starts.sum(axis=1)
@@ -430,8 +433,30 @@ def _receive(spec: ScenarioSpec, g: _Group, horizon: np.ndarray, sched: list):
                 amp[j, edges[k]:edges[k] + u.size] = spur_a[j]
         spur *= span[:, None]  # t_start + span * u, in place
         spur += g.t_start[:, None]
+    if spec.merge == "emission":
+        noise_free = y.copy()  # spurious pulses: their own times
+        for a, b, t in zip(edges, edges[1:], ys):
+            noise_free[:, a:b] = t
+        _merge_at_emission(y, noise_free, spec.coincidence_resolution)
 
     return y, amp, np.repeat(np.array(labels, np.int32), widths)
+
+
+def _merge_at_emission(y: np.ndarray, noise_free: np.ndarray, resolution: float) -> None:
+    """MK94's merging (`ScenarioSpec.merge == "emission"`): pulses whose noise-free arrival times are
+    closer than `resolution` to their predecessor's arrive as one pulse, at the received TOA of the
+    run's earliest arrival.  Every member of a run takes that TOA (in `y`, in place), so after the
+    sort the merging step joins exactly the tied pulses (the lowest-numbered source leads a run)."""
+    order = np.argsort(noise_free, axis=1, kind="stable")
+    t = _take_rows(noise_free, order)
+    joins = np.zeros(t.shape, bool)
+    with np.errstate(invalid="ignore"):  # inf - inf in the padding
+        joins[:, 1:] = np.diff(t, axis=1) < resolution
+    if joins.any():
+        lead = np.where(joins, 0, np.arange(t.shape[1]))  # each pulse's run start, in sorted position
+        np.maximum.accumulate(lead, axis=1, out=lead)
+        rows = np.arange(y.shape[0])[:, None]
+        y[rows, order] = y[rows, np.take_along_axis(order, lead, axis=1)]
 
 
 def _miss(prob: float, seeds: list[int], counts: np.ndarray, ts: list[np.ndarray], amps: list[np.ndarray | None]):

@@ -7,13 +7,14 @@ prediction-error costs J (3.1) of all N^(Delta+1) continuations s_k..s_{k+Delta}
 and keeps the minimum c_ij per (s_k, s_{k+1}) = (i, j); step 2 is the FDP recursion (3.2),
 phi^j = argmin_i (c_ij + r_k^i); step 3 carries the KF of the chosen survivor (3.3).
 
-Reading of (3.2).  r_k^i is "the prediction-error cost of the best sequence ending in source i at
-time k", so by default r accumulates the errors of the sequence itself, r_{k+1}^j = r_k^phi + e_{k+1}^2,
-while the look-ahead costs c_ij only choose phi.  This is the reading under which, as the paper says,
-a look-ahead as long as the data *is* the optimal tree search (2.19) (tests check that).  The literal
-r_{k+1}^j = min_i (c_ij + r_k^i), which counts each look-ahead error again at every later pulse, is the
-variant `accumulate="lookahead"`.  The first pulse's own error starts the costs (r_1^i = e_1^2 under
-source i, where the paper writes 0) for the same reason.
+Reading of (3.2).  By default (`accumulate="lookahead"`) the costs accumulate as published,
+r_{k+1}^j = min_i (c_ij + r_k^i): each survivor's cost carries its best look-ahead cost, so every
+look-ahead error is counted again at each later pulse.  On MK94's Fig. 4/5 sweep this reaches the
+genie's error rate up to sigma_w^2 = 2 (`deint reproduce mk94-fig4-5`).  `accumulate="sequence"` is
+the other reading of "the cost of the best sequence ending in source i": r accumulates the errors of
+the sequence itself, r_{k+1}^j = r_k^phi + e_{k+1}^2, while c_ij only choose phi; under it a look-ahead
+as long as the data *is* the optimal tree search (2.19) (tests check that).  The first pulse's own
+error starts the costs (r_1^i = e_1^2 under source i, where the paper writes 0) for the same reason.
 
 Initialisation (2.3).  By default a source's first pulse is predicted at its phase (blocks start at
 tau = phi - T, DESIGN section 8).  `init="mk94"` is the literal (2.3): tau_1 = phi, the first received
@@ -163,7 +164,7 @@ class FDPCore:
 class FDP:
     """MK94 forward dynamic programming with look-ahead Delta (policies `fdp`, `fdp-ll`).
 
-    Parameters: `lookahead` (Delta >= 1), `accumulate` ("sequence" or the literal "lookahead"),
+    Parameters: `lookahead` (Delta >= 1), `accumulate` (the published (3.2) "lookahead", or "sequence"),
     `init` ("phase" or the literal "mk94"), `cost` ("raw" squared errors (2.18), or "likelihood":
     e^2/S + log S, which weighs each error by its predicted spread), `missing` / `supernumerary` /
     `spurious_penalty` (section VI-A), `dropout` and `gate` (section VI-C-3: coasting through missed
@@ -171,12 +172,12 @@ class FDP:
     The lag is Delta, or Delta + 1 with `supernumerary`.
     """
 
-    def __init__(self, lookahead: int = 3, accumulate: str = "sequence", init: str = "phase", cost: str = "raw",
+    def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
                  dropout: bool = False, gate: float = 5.0, reuse: bool = True):
         if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
             raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
-        for name, value, allowed in (("accumulate", accumulate, ("sequence", "lookahead")),
+        for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
                                      ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood"))):
             if value not in allowed:
                 raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")

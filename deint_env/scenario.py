@@ -254,6 +254,7 @@ class WaveformSpec:
 
 
 PRIOR_KINDS = ("explicit", "perturbed", "none")
+MERGE_MODELS = ("received", "emission")  # ScenarioSpec.merge
 
 
 @dataclass(frozen=True)
@@ -316,7 +317,10 @@ class ScenarioSpec:
     (non-cumulative).  pri_jitter_std: cumulative jitter, the std of each interval (arrival times
     random-walk).  missing_prob: each emitted pulse is independently lost with this probability.
     coincidence_resolution: a received pulse closer than this to its predecessor merges into it (the
-    merged pulse keeps the earlier TOA and sums the amplitudes, MK94 section VI).  spurious_rate:
+    merged pulse keeps the earlier TOA and sums the amplitudes, MK94 section VI).  merge: what the
+    resolution compares: "received" (default), the jittered TOAs, as a receiver resolves pulses; or
+    "emission", the noise-free arrival times, as MK94 VI-A-2 and VI-B merge exactly simultaneous
+    arrivals: such a run is received once, at the jittered TOA of its earliest arrival.  spurious_rate:
     expected spurious pulses per source pulse (a Poisson process of intensity
     spurious_rate * sum_i 1/T_i).  amplitudes: whether pulses carry an amplitude; amplitude_noise_std
     is its measurement noise.  priors: see PriorSpec.  blind: unknown number of sources and no priors;
@@ -333,6 +337,7 @@ class ScenarioSpec:
     pri_jitter_std: float = 0.0
     missing_prob: float = 0.0
     coincidence_resolution: float = 0.0
+    merge: str = "received"
     spurious_rate: float = 0.0
     amplitudes: bool = False
     amplitude_noise_std: float = 0.0
@@ -364,6 +369,9 @@ class ScenarioSpec:
             check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= hi,
                   name, v, f"a number in [0, {hi}]")
             object.__setattr__(self, name, float(v))
+        check(self.merge in MERGE_MODELS, "merge", self.merge, f"one of {', '.join(MERGE_MODELS)}")
+        check(self.merge == "received" or self.coincidence_resolution > 0, "merge", self.merge,
+              "'emission' needs a coincidence_resolution > 0 (how close noise-free arrivals merge)")
         min_period = min(_param_low(s.period) * s.modulation.min_ratio() for s in srcs)
         check(self.pri_jitter_std <= min_period / 3, "pri_jitter_std", self.pri_jitter_std,
               f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")

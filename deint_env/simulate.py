@@ -4,7 +4,8 @@ Order of effects, as a receiver sees them: each source emits on its own (modulat
 jittered) schedule inside its on-windows; each emission is independently missed with
 `missing_prob`; the survivors get white Gaussian TOA noise (sigma_w); a Poisson stream of spurious
 pulses is added; everything is sorted by TOA; pulses closer than `coincidence_resolution` to their
-predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask); the first
+predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask; with
+`merge="emission"` the noise-free arrivals are compared instead, see `sim.merging.merge_at_emission`); the first
 `n_pulses` are kept; amplitude measurement noise is added.
 
 Every random stream is keyed by (seed, role, source), so the same spec and seed give the same
@@ -197,7 +198,9 @@ def _generate(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], g: Draws, hor
     if spec.coincidence_resolution > 0:
         starts = np.ones(toa.shape, bool)  # the first pulse of each run closer than the resolution
         with np.errstate(invalid="ignore"):  # inf - inf in the padding, which is past the row's cut
-            starts[:, 1:] = np.diff(toa, axis=1) >= spec.coincidence_resolution
+            gap = np.diff(toa, axis=1)
+            # merge="emission": the runs were formed before the noise and share one TOA (merge_at_emission)
+            starts[:, 1:] = gap > 0 if spec.merge == "emission" else gap >= spec.coincidence_resolution
         if cut.min() < seen:
             starts &= np.arange(seen) < cut[:, None]
         n_runs = starts.sum(axis=1)

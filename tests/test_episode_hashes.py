@@ -71,6 +71,12 @@ EXTRA = (
                  sources=(SourceSpec(period=11.0, phase=3.0, amplitude=2.0), SourceSpec(period=17.0, amplitude=1.0)),
                  priors=PriorSpec(kind="explicit", period=(10.0, 18.0, 30.0), phase=(2.0, 4.0, 5.0),
                                   period_std=(1.0,), phase_std=(1.0, 2.0, 3.0))),
+    # MK94's merging (merge="emission"): exactly simultaneous noise-free arrivals of > 3 sources (the
+    # default sort and the stable re-sort of ties), amplitudes summed, spurious pulses, missed pulses
+    ScenarioSpec(name="x-emission-merged", n_pulses=600, toa_jitter_std=0.5, missing_prob=0.05,
+                 coincidence_resolution=0.5, merge="emission", spurious_rate=0.1, amplitudes=True,
+                 sources=tuple(SourceSpec(period=t, phase=0.0, amplitude=a)
+                               for t, a in ((10.0, 1.0), (15.0, 2.0), (6.0, 1.5), (12.0, 1.0)))),
     # explicit priors without phases and with given source probabilities
     ScenarioSpec(name="x-explicit-no-phase", n_pulses=200, toa_jitter_std=0.5,
                  sources=(SourceSpec(period=Range(9.0, 12.0)), SourceSpec(period=Range(15.0, 20.0))),

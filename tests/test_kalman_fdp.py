@@ -115,15 +115,18 @@ def test_fdp_with_full_lookahead_is_the_tree_search(seed):
     ep = _short(seed)
     seq, _ = tree_search(ep.toa, ep.priors)
     for reuse in (True, False):
-        np.testing.assert_array_equal(play(FDP(lookahead=len(ep) - 1, reuse=reuse), ep).labels, seq)
+        np.testing.assert_array_equal(play(FDP(lookahead=len(ep) - 1, accumulate="sequence", reuse=reuse), ep).labels,
+                                      seq)
     np.testing.assert_array_equal(play(TreeSearch(max_pulses=len(ep)), ep).labels, seq)
 
 
-def test_fdp_lookahead_3_mostly_agrees_with_the_tree():
-    """The issue asks for the rate: measured 46 of 60 (77 %) on these short trains when written."""
-    agree = sum(np.array_equal(play(FDP(lookahead=3), ep).labels, tree_search(ep.toa, ep.priors)[0])
-                for ep in (_short(s, 3, 10) for s in range(20)))
-    assert agree >= 14
+@pytest.mark.parametrize("accumulate, least", [("sequence", 14), ("lookahead", 8)])
+def test_fdp_lookahead_3_often_agrees_with_the_tree(accumulate, least):
+    """Measured on these 20 short trains: 14 (sequence reading) and 10 (the published (3.2), which
+    counts look-ahead errors again and so departs from the whole-train minimum more often)."""
+    agree = sum(np.array_equal(play(FDP(lookahead=3, accumulate=accumulate), ep).labels,
+                               tree_search(ep.toa, ep.priors)[0]) for ep in (_short(s, 3, 10) for s in range(20)))
+    assert agree >= least
 
 
 def test_tree_search_beats_every_sampled_sequence():

@@ -22,7 +22,7 @@ ENTRIES = [pytest.param(s, e, id=f"{s}/{e.name}") for s in SUITES for e in load_
 
 def test_expected_suites():
     assert set(SUITES) == set(BUILDERS)
-    assert {"paper-v0", "core-v0", "robust-v0", "agile-v0", "scale-v0", "blind-v0"} <= set(SUITES)
+    assert {"paper-v0", "paper-v1", "core-v0", "robust-v0", "agile-v0", "scale-v0", "blind-v0"} <= set(SUITES)
 
 
 @pytest.mark.parametrize("name", SUITES)
@@ -135,13 +135,13 @@ def test_unknown_names_are_clear_errors(name, words):
         resolve_scenario(name)
 
 
-def test_ambiguous_bare_name(monkeypatch):
-    real_list, real_load = suites_mod.list_suites, suites_mod.load_suite
-    monkeypatch.setattr(suites_mod, "list_suites", lambda: (*real_list(), "copy-v0"))
-    monkeypatch.setattr(suites_mod, "load_suite", lambda n: real_load("paper-v0" if n == "copy-v0" else n))
-    with pytest.raises(DeintError, match="several suites"):
-        suites_mod.find_entry("mk94-three")
-    assert suites_mod.find_entry("paper-v0/mk94-three").name == "mk94-three"
+def test_ambiguous_bare_name():
+    """paper-v1 repeats paper-v0's scenarios: a bare name resolves where both agree (to paper-v0's
+    entry), and is an error where they differ (the merging scenarios)."""
+    assert find_entry("mk94-three") == find_entry("paper-v0/mk94-three") == find_entry("paper-v1/mk94-three")
+    with pytest.raises(DeintError, match=r"several suites \(paper-v0, paper-v1\) and differs"):
+        find_entry("mk94-missing-two")
+    assert find_entry("paper-v1/mk94-missing-two").spec.merge == "emission"
 
 
 def test_resolve_scenario_kinds():

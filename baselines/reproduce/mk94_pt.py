@@ -1,5 +1,5 @@
-"""MK94's probabilistic-teacher experiments (section V-C, VI-B): Figs. 9, 10, 11 and 13, on the paper-v0
-scenarios and their test seeds (policy seed = episode seed, as the runner plays them).
+"""MK94's probabilistic-teacher experiments (section V-C, VI-B): Figs. 9, 10, 11 and 13, on the paper-v1
+scenarios (MK94's merging) and their test seeds (policy seed = episode seed, as the runner plays them).
 
 What to expect from PT with a-priori probabilities.  Its source choice ignores the data, so source i
 is handed each pulse with probability pi_i and its KF fits a line through a *binomially thinned*
@@ -19,7 +19,7 @@ import numpy as np
 
 from baselines.pt import PTPost, PTPrior
 from baselines.reproduce import Report, experiment, figure
-from baselines.reproduce.mk94 import trace_periods
+from baselines.reproduce.mk94 import SUITE, trace_periods
 from deint_env.episode import Episode
 from deint_env.runner import play
 from deint_env.simulate import simulate
@@ -28,7 +28,7 @@ from deint_env.suites import find_entry
 
 def _runs(scen: str, policy, quick: bool, quick_pulses: int, n_seeds: int = 10):
     """(episodes, period traces (seeds, K, N), label accuracies) over the scenario's test seeds."""
-    entry = find_entry(f"paper-v0/{scen}")
+    entry = find_entry(f"{SUITE}/{scen}")
     spec = entry.spec.replace(n_pulses=quick_pulses) if quick else entry.spec
     eps, traces, accs = [], [], []
     for seed in list(entry.test)[: 2 if quick else n_seeds]:
@@ -87,6 +87,9 @@ def _pt_prior(name: str, scen: str, title: str, at: int, paper: str, quick: bool
     rel = traces[:, at - 1] / truth - 1.0
     rep.files.append(_prior_figure(out, name, title, traces, truth, pi, eps[0].seed))
     rep.add("true periods", _fmt(truth, 0), _fmt(truth, 0))
+    rep.add("a-priori probabilities pi_i", _fmt(pi, 3), "pi_i = T_i / sum T",
+            "the pulse rates, pi_i proportional to 1/T_i: the paper's T_i / sum T (a typo) would hand the slowest "
+            "source the most pulses")
     rep.add(f"period estimates after {at} pulses, mean over {len(eps)} seeds", _fmt(traces[:, at - 1].mean(0)), paper)
     rep.add(f"relative rms period error after {at} pulses", _pct(np.sqrt(np.mean(rel ** 2, axis=0))), "",
             f"predicted {_pct(predicted_rms(pi, at))} (module doc)")
@@ -168,7 +171,8 @@ def lost_fraction(ep: Episode) -> float:
 
 @experiment("mk94-fig13", "MK94 VI-B, Fig. 13: PT with known a-priori probabilities and merged pulses")
 def fig13(out: Path, quick: bool) -> Report:
-    rep = Report("mk94-fig13", "PT-prior, T=(11,30,80), sigma_w^2=36, coincident pulses merged, x_1|0=1, Sigma=1e6 I")
+    rep = Report("mk94-fig13", "PT-prior, T=(11,30,80), sigma_w^2=36, simultaneous arrivals merged, x_1|0=1, "
+                 "Sigma=1e6 I")
     eps, traces, accs = _runs("mk94-pt-missing-three", PTPrior, quick, 600)
     truth, pi = eps[0].truth.period, eps[0].priors.source_prob
     f = np.array([lost_fraction(ep) for ep in eps])
@@ -182,6 +186,6 @@ def fig13(out: Path, quick: bool) -> Report:
     rep.add("relative bias of the estimates", _pct(np.mean(final / truth - 1, axis=0)), "",
             f"predicted 1/(1-f) - 1 = {100 * np.mean(1 / (1 - f) - 1):.1f}% for f lost")
     rep.add("fraction f of emitted pulses lost to merging (mean)", f"{100 * f.mean():.1f}%", "",
-            "resolution 1 applied after the jitter (sigma_w = 6); exactly coincident schedules lose ~3 %")
+            "paper-v1: exactly simultaneous noise-free arrivals merge, as in MK94")
     rep.add("label accuracy (mean)", f"{accs.mean():.3f}", "")
     return rep

@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 
 from deint_env.scenario import ScenarioSpec
+from deint_env.sim.merging import merge_at_emission
 from deint_env.sim.rows import compact
 from deint_env.sim.schedule import Draws, Emissions
 from deint_env.sim.streams import JITTER, MISSING, SPURIOUS, fill, streams
@@ -70,6 +71,11 @@ def receive(spec: ScenarioSpec, g: Draws, horizon: np.ndarray, sched: list[Emiss
                 amp[j, edges[k]:edges[k] + u.size] = spur_a[j]
         spur *= span[:, None]  # t_start + span * u, in place
         spur += g.t_start[:, None]
+    if spec.merge == "emission":
+        noise_free = y.copy()  # spurious pulses: their own times
+        for a, b, t in zip(edges, edges[1:], ys):
+            noise_free[:, a:b] = t
+        merge_at_emission(y, noise_free, spec.coincidence_resolution)
 
     return Received(y, amp, np.repeat(np.array(labels, np.int32), widths))
 

@@ -7,6 +7,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from deint_env.sim.rows import take_rows
+
 
 class MergedRow(NamedTuple):
     """One episode's output rows that `merge` fills in place."""
@@ -43,3 +45,20 @@ def merge(toa, src, bits, amp, starts, out: MergedRow) -> None:
         g, members = group[real][led_by_spurious], rest[real][led_by_spurious]
         _, first = np.unique(g, return_index=True)
         primary[g[first]] = src[members[first]]
+
+
+def merge_at_emission(y: np.ndarray, noise_free: np.ndarray, resolution: float) -> None:
+    """MK94's merging (`ScenarioSpec.merge == "emission"`): pulses whose noise-free arrival times are
+    closer than `resolution` to their predecessor's arrive as one pulse, at the received TOA of the
+    run's earliest arrival.  Every member of a run takes that TOA (in `y`, in place), so after the
+    sort `merge` joins exactly the tied pulses (the lowest-numbered source leads a run)."""
+    order = np.argsort(noise_free, axis=1, kind="stable")
+    t = take_rows(noise_free, order)
+    joins = np.zeros(t.shape, bool)
+    with np.errstate(invalid="ignore"):  # inf - inf in the padding
+        joins[:, 1:] = np.diff(t, axis=1) < resolution
+    if joins.any():
+        lead = np.where(joins, 0, np.arange(t.shape[1]))  # each pulse's run start, in sorted position
+        np.maximum.accumulate(lead, axis=1, out=lead)
+        rows = np.arange(y.shape[0])[:, None]
+        y[rows, order] = y[rows, np.take_along_axis(order, lead, axis=1)]

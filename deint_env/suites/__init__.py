@@ -140,16 +140,18 @@ def history() -> dict[str, list[dict[str, Any]]]:
 
 
 def find_entry(name: str) -> SuiteEntry:
-    """A scenario by 'suite/scenario', or by bare scenario name when exactly one suite has it."""
+    """A scenario by 'suite/scenario', or by bare scenario name when the suites that have it agree on
+    it (a new suite version repeats the scenarios it keeps): then the first such suite's entry."""
     if "/" in name:
         suite, scenario = name.split("/", 1)
         return load_suite(suite).entry(scenario)
-    hits = [e for s in list_suites() for e in load_suite(s) if e.name == name]
-    if len(hits) == 1:
-        return hits[0]
+    hits = [(s, e) for s in list_suites() for e in load_suite(s) if e.name == name]
     if not hits:
         raise DeintError(f"scenario {name!r} is unknown; name one as SUITE/SCENARIO (see `deint suites`)")
-    raise DeintError(f"scenario {name!r} is in several suites; name it as SUITE/SCENARIO")
+    if len({e.spec.content_hash for _, e in hits}) > 1:
+        raise DeintError(f"scenario {name!r} is in several suites ({', '.join(s for s, _ in hits)}) and differs "
+                         "between them; name it as SUITE/SCENARIO")
+    return hits[0][1]
 
 
 def resolve_scenario(scenario: ScenarioSpec | str | dict[str, Any]) -> ScenarioSpec:

@@ -6,6 +6,7 @@ change a suite, add a new version here (e.g. `core-v1`) and publish it with `--p
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import math
@@ -145,6 +146,29 @@ def paper_v0() -> Suite:
                  "Moore 2000 (section IV), with the papers' own initial estimates as priors.", tuple(e))
 
 
+# The merging scenarios of paper-v0 as MK94 simulates them (the other scenarios are paper-v0's).
+MK94_SIMULTANEOUS = {
+    "mk94-missing-two": "MK94 VI-A-2, Fig. 12: T=(11,30), sigma_w^2=1, exactly simultaneous noise-free arrivals "
+                        "merge (only one is received); x_1|0=(4,27,3,4), Sigma=1e6 I",
+    "mk94-pt-missing-three": "MK94 VI-B, Fig. 13: PT with known priors, exactly simultaneous noise-free arrivals "
+                             "merged, T=(11,30,80), sigma_w^2=36; x_1|0=1, Sigma=1e6 I",
+}
+
+
+def paper_v1() -> Suite:
+    """paper-v0 with MK94's merging model (sections VI-A-2, VI-B): pulses merge when their noise-free
+    arrivals coincide, not when their jittered TOAs land within the resolution.  On the integer
+    schedules of Figs. 12-13 paper-v0's resolution of 1 then merges exactly the simultaneous arrivals."""
+    e = []
+    for x in paper_v0():
+        if x.name in MK94_SIMULTANEOUS:
+            x = dataclasses.replace(x, spec=x.spec.replace(merge="emission", description=MK94_SIMULTANEOUS[x.name]),
+                                    settings={**x.settings, "merge": "emission"})
+        e.append(x)
+    return Suite("paper-v1", 1, "paper-v0 with MK94's merging: exactly simultaneous noise-free arrivals merge "
+                 "(Figs. 12-13); every other scenario as in paper-v0.", tuple(e))
+
+
 # ------------------------------------------------------------------------------------------------
 # core-v0, robust-v0, agile-v0, scale-v0, blind-v0
 # ------------------------------------------------------------------------------------------------
@@ -253,7 +277,7 @@ def blind_v0() -> Suite:
     return Suite("blind-v0", 0, "Unknown number of sources and no priors: link-rewarded labels.", tuple(e))
 
 
-BUILDERS = {"paper-v0": paper_v0, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
+BUILDERS = {"paper-v0": paper_v0, "paper-v1": paper_v1, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
             "scale-v0": scale_v0, "blind-v0": blind_v0}
 
 

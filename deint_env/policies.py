@@ -43,6 +43,8 @@ class PolicyInfo:
     oracle: bool = False
     description: str = ""
     extra: str | None = None  # the optional dependency set it needs, e.g. "rl"
+    kind: str = "reference"  # 'reference' | 'learned' | 'oracle' | 'adapter': leaderboards show it
+    version: int = 1  # bump when the policy's behaviour changes: results of other versions are replayed
 
     def load(self) -> Callable[..., Policy]:
         if callable(self.factory):

@@ -16,9 +16,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from deint_env import stats
+from deint_env import metrics, stats
 from deint_env.errors import DeintError
-from deint_env.metrics import METRICS, SCORE
+from deint_env.metrics import SCORE
 from deint_env.results import EpisodeRecord
 
 Triple = tuple[float, float, float]
@@ -69,6 +69,6 @@ def aggregate_entry(recs: Sequence[EpisodeRecord], groups: Mapping[str, Sequence
     }
     for name in ("iqm", "mean"):
         row[f"{SCORE}_{name}"], row[f"{SCORE}_{name}_low"], row[f"{SCORE}_{name}_high"] = est["all"][name]
-    for m in METRICS:
+    for m in metrics.METRICS:
         row[m.key] = m.reduce(_finite(r.get(m.key) for r in played))
     return EntryAggregate(row, strata, est, profile)

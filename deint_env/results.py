@@ -103,8 +103,8 @@ class EpisodeRecord:
     def to_json(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "metrics"}
         out["tags"] = list(self.tags)
-        for name in ("reason", "fault"):
-            if out[name] is None:
+        for name in ("submitted", "reason", "fault"):  # written only where they say something
+            if not out[name]:
                 del out[name]
         return json_ready({**self.metrics, **out})
 

@@ -1,12 +1,14 @@
 """The one table formatter: aligned text (the terminal) and Markdown (READMEs), and the columns of an
-entry table (`deint run`'s summary, the leaderboard) built from the metric table `METRICS`."""
+entry table (`deint run`'s summary, the leaderboard) built from the metric table `metrics.METRICS`
+(read when a table is made, so an entry added there shows everywhere)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from deint_env.metrics import METRICS, SCORE, Metric
+from deint_env import metrics
+from deint_env.metrics import SCORE, Metric
 
 
 def text_table(head: Sequence[str], body: Sequence[Sequence[str]]) -> str:
@@ -62,7 +64,7 @@ def entry_columns(summary: bool = False) -> list[Column]:
         cols += [Column("episodes", lambda r: str(r["episodes"]), lambda r: r["episodes"])]
     cols += [Column(f"{SCORE} {label} [95% CI]", lambda r, k=f"{SCORE}_{name}": interval(r, k),
                     lambda r, k=f"{SCORE}_{name}": r[k]) for label, name in (("IQM", "iqm"), ("mean", "mean"))]
-    cols += [_metric_column(m) for m in METRICS if m.summary or not summary]
+    cols += [_metric_column(m) for m in metrics.METRICS if m.summary or not summary]
     cols += [Column("coverage", lambda r: f"{r['coverage']:.0%}", lambda r: r["coverage"]),
              Column("faults", lambda r: str(len(r["faults"])), lambda r: len(r["faults"]))]
     return cols

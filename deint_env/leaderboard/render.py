@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from deint_env.errors import DeintError
-from deint_env.metrics import METRICS
+from deint_env import metrics
 from deint_env.tables import display_name, entry_columns, fault_lines, interval, markdown_table, num
 
 PLOTS_DOC = {
@@ -102,20 +102,24 @@ def render_all(board: dict[str, Any]) -> dict[str, str]:
 # ---------------------------------------------------------------------------------------------------
 # cells
 # ---------------------------------------------------------------------------------------------------
-CSV_FIELDS = ["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean",
-              "score_mean_low", "score_mean_high"] + [m.key for m in METRICS] + [
-              "coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version", "policy_version"]
+def csv_fields() -> list[str]:
+    return (["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean", "score_mean_low",
+             "score_mean_high"] + [m.key for m in metrics.METRICS]
+            + ["coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version", "policy_version"])
+
+
 TAG_FIELDS = ["iqm", "iqm_low", "iqm_high", "mean", "mean_low", "mean_high", "scored"]
 
 
 def render_csv(board: dict[str, Any]) -> str:
-    head = CSV_FIELDS + ["suite", "suite_version", "suite_hash"]
+    fields = csv_fields()
+    head = fields + ["suite", "suite_version", "suite_hash"]
     head += [f"tag_{t}_{f}" for t in board["tags"] for f in TAG_FIELDS]
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(head)
     for r in board["rows"]:
-        cells = [len(r[k]) if k == "faults" else r[k] for k in CSV_FIELDS]
+        cells = [len(r[k]) if k == "faults" else r[k] for k in fields]
         cells += [board["suite"], board["suite_version"], board["suite_hash"]]
         cells += [r["tags"][t][f] for t in board["tags"] for f in TAG_FIELDS]
         w.writerow(["" if c is None else str(c).lower() if isinstance(c, bool) else c for c in cells])

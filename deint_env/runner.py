@@ -31,7 +31,6 @@ from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
@@ -44,8 +43,7 @@ from deint_env.labels import correct_anchored, correct_link
 from deint_env.metrics import estimation_metrics, matched_labels, normalised_score
 from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec, policy_info
 from deint_env.progress import progress_bar
-from deint_env.results import (EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records,  # noqa: F401
-                               results_lock)
+from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records, results_lock
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.stats import have_rliable

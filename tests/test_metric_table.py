@@ -4,6 +4,7 @@ aggregate through one path; one table formatter; no import cycle between the lea
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import subprocess
@@ -12,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from deint_env import aggregate, metrics, runner
+from deint_env import aggregate, metrics, policies, runner
 from deint_env.leaderboard import Scope, build
 from deint_env.metrics import Metric
 from deint_env.tables import markdown_table, text_table
@@ -84,3 +85,17 @@ def test_leaderboard_modules_import_without_a_cycle():
                       .read_text())
     imported = {n.module for n in ast.walk(plots) if isinstance(n, ast.ImportFrom)}
     assert "deint_env.leaderboard.build" not in imported
+
+
+def test_leaderboard_rows_say_whether_an_entry_is_learned(tmp_path, monkeypatch):
+    policies.list_policies()
+    monkeypatch.setitem(policies._REGISTRY, "random", dataclasses.replace(policies.policy_info("random"), kind="learned"))
+    folder, board = build(SCOPE, ["random", "genie"], workers=1, root=tmp_path, progress=False, reps=100)
+    rows = {r["policy"]: r for r in board["rows"]}
+    assert rows["random"]["kind"] == "learned"
+    assert rows["genie"]["kind"] == policies.policy_info("genie").kind  # read from the registry
+    assert "| random (learned) |" in (folder / "README.md").read_text()
+    table = list(csv.DictReader(io.StringIO((folder / "leaderboard.csv").read_text())))
+    assert {r["policy"]: r["kind"] for r in table}["random"] == "learned"
+    assert "random (learned)" in runner.format_table(runner.summarise(runner.read_records(folder / "results.jsonl"),
+                                                                       reps=100))

@@ -89,7 +89,8 @@ def test_leaderboard_modules_import_without_a_cycle():
 
 def test_leaderboard_rows_say_whether_an_entry_is_learned(tmp_path, monkeypatch):
     policies.list_policies()
-    monkeypatch.setitem(policies._REGISTRY, "random", dataclasses.replace(policies.policy_info("random"), kind="learned"))
+    learned = dataclasses.replace(policies.policy_info("random"), kind="learned")
+    monkeypatch.setitem(policies._REGISTRY, "random", learned)
     folder, board = build(SCOPE, ["random", "genie"], workers=1, root=tmp_path, progress=False, reps=100)
     rows = {r["policy"]: r for r in board["rows"]}
     assert rows["random"]["kind"] == "learned"

@@ -248,12 +248,16 @@ def test_a_failed_publish_leaves_the_old_leaderboard(tmp_path, monkeypatch):
     after = {p.name: p.read_bytes() for p in folder.iterdir() if p.name != "results.jsonl"}
     assert after == {k: v for k, v in before.items() if k != "results.jsonl"}  # untouched, no staging left
     # results.jsonl is the run's log: the played episodes were appended (and are not played again).
-    assert set(before["results.jsonl"].decode().splitlines()) <= set((folder / "results.jsonl").read_text().splitlines())
+    now = set((folder / "results.jsonl").read_text().splitlines())
+    assert set(before["results.jsonl"].decode().splitlines()) <= now
 
 
 def test_run_on_a_full_disk_names_the_file(tmp_path, capsys, monkeypatch):
     out = tmp_path / "res.jsonl"
-    monkeypatch.setattr(results, "_write", lambda fd, data: (_ for _ in ()).throw(OSError(28, "No space left on device")))
+    def full_disk(fd, data):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(results, "_write", full_disk)
     code, stdout, err = deint(capsys, "run", "--policies", "random", "--scenario", TARGET, "--max-seeds", 2,
                               "--out", out, "--no-progress")
     assert code == 2 and err == f"deint: error: {out}: cannot write (No space left on device)\n"

@@ -35,8 +35,8 @@ def _fill(f: Any, raw: bytes) -> None:
     f.write(raw)
 
 
-def write_file(path: Path, data: str | bytes) -> None:
-    """Write `data` to a temporary file beside `path`, then rename it over `path`."""
+def _replace(path: Path, data: str | bytes) -> None:
+    """Write `data` to a temporary file beside `path`, then rename it over `path` (OSError on failure)."""
     raw = data.encode("utf-8") if isinstance(data, str) else data
     tmp = None
     try:
@@ -45,10 +45,18 @@ def write_file(path: Path, data: str | bytes) -> None:
             _fill(f, raw)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except OSError as e:
+    except OSError:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+        raise
+
+
+def write_file(path: Path, data: str | bytes) -> None:
+    """Replace `path` by `data` atomically, or raise one `DeintError` line naming it."""
+    try:
+        _replace(path, data)
+    except OSError as e:
         raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
 
 
@@ -66,10 +74,10 @@ def publish(folder: Path, files: dict[str, str | bytes], obsolete: list[str] = (
         stage.mkdir()
         for name, data in files.items():
             try:
-                write_file(stage / name, data)
-            except DeintError as e:
+                _replace(stage / name, data)
+            except OSError as e:
                 raise DeintError(f"{folder / name}: cannot write, nothing was published "
-                                 f"({str(e).rpartition('(')[2].rstrip(')')})") from None
+                                 f"({e.strerror or e})") from None
         for name in files:
             os.replace(stage / name, folder / name)
         for name in obsolete:
@@ -105,7 +113,8 @@ def render_all(board: dict[str, Any]) -> dict[str, str]:
 def csv_fields() -> list[str]:
     return (["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean", "score_mean_low",
              "score_mean_high"] + [m.key for m in metrics.METRICS]
-            + ["coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version", "policy_version"])
+            + ["coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version",
+               "policy_version"])
 
 
 TAG_FIELDS = ["iqm", "iqm_low", "iqm_high", "mean", "mean_low", "mean_high", "scored"]

@@ -100,3 +100,11 @@ def test_leaderboard_rows_say_whether_an_entry_is_learned(tmp_path, monkeypatch)
     assert {r["policy"]: r["kind"] for r in table}["random"] == "learned"
     assert "random (learned)" in runner.format_table(runner.summarise(runner.read_records(folder / "results.jsonl"),
                                                                        reps=100))
+
+
+def test_the_leaderboard_says_how_each_metric_reads(tmp_path):
+    _, board = build(SCOPE, ["random"], workers=1, root=tmp_path, progress=False, reps=100)
+    described = {m["key"]: m for m in board["metrics"]}
+    assert list(described) == [m.key for m in metrics.METRICS]
+    assert described["mean_pe"]["higher_is_better"] is False and described["accuracy"]["higher_is_better"] is True
+    assert described["period_rel_error"]["aggregate"] == "median"

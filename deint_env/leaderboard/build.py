@@ -17,7 +17,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from deint_env import stats
+from deint_env import metrics, stats
 from deint_env.aggregate import aggregate_entry
 from deint_env.errors import DeintError
 from deint_env.policies import list_policies, parse_policy_spec, policy_info
@@ -240,6 +240,8 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
                       "interval": "percentile"},
         "rows": rows, "probability_of_improvement": _improvements(rows, strata_of, reps, seed),
         "incomplete": incomplete, "stale": stale,
+        "metrics": [{"key": m.key, "label": m.label, "aggregate": m.aggregate, "higher_is_better": m.higher_is_better}
+                    for m in metrics.METRICS],  # how to read each row's metric columns
     }
     return json_ready(board), profiles
 

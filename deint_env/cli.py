@@ -442,11 +442,7 @@ def _span(values: list[int]) -> str:
     return str(lo) if lo == hi else f"{lo}-{hi}"
 
 
-def _table(head: list[str], body: list[list[str]]) -> str:
-    widths = [max([len(h)] + [len(r[i]) for r in body]) for i, h in enumerate(head)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)).rstrip(), "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in body]
-    return "\n".join(lines)
+from deint_env.tables import text_table as _table  # noqa: E402 -- the one table formatter
 
 
 def _suite_summary(suite) -> dict[str, Any]:
@@ -668,11 +664,12 @@ def _scope(suite: str, args: argparse.Namespace):
 
 
 def _leaderboard_report(board: dict[str, Any], folder: Path) -> None:
-    from deint_env.leaderboard.render import COLUMNS, tidy
+    from deint_env.leaderboard.render import tidy
+    from deint_env.tables import entry_table
 
     b = tidy(board)
     print(f"{b['suite']} (version {b['suite_version']}, hash {b['suite_hash']}), {b['episodes']} test episodes")
-    print(_table([c[0] for c in COLUMNS], [[c[1](r) for c in COLUMNS] for r in b["rows"]]))
+    print(entry_table(b["rows"]))
     for policy, n in sorted(b["incomplete"].items()):
         _status(f"deint: warning: {policy} has {n} of {b['episodes']} episodes; it is left out until complete")
     _status(f"deint: leaderboard of {b['suite']} -> {folder}/ (README.md, index.html, leaderboard.json, .csv, plots)")

@@ -6,13 +6,17 @@ spurious precision/recall, the Turing Deinterleaving Challenge's clustering metr
 AMI, homogeneity, completeness from scikit-learn; cluster-wise MCC and F1), and the estimation errors
 of a policy's `estimates()` against the truth and the Cramer-Rao bound.
 
-Across episodes: mean and interquartile mean (IQM) with stratified-bootstrap percentile intervals,
-strata being scenarios and samples their seeds (the method of rliable, Agarwal et al. 2021).
+Across episodes: `METRICS`, the one metric table (key, label, format, how it aggregates, which way
+is better) that the runner's summary, the leaderboard and its renderers all read: adding a metric
+is a function here and one `Metric` line.  The normalised score is aggregated as its IQM and mean
+with stratified-bootstrap intervals (`deint_env.aggregate`); `stratified_bootstrap` below is the
+plain-numpy statement of that method, against which the rliable path is tested.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -194,9 +198,6 @@ def mean(x: np.ndarray, axis: int = -1) -> Any:
     return np.mean(x, axis=axis) if x.size else math.nan
 
 
-AGGREGATES: dict[str, Callable[..., Any]] = {"mean": mean, "iqm": iqm}
-
-
 def stratified_bootstrap(strata: Sequence[np.ndarray], stat: Callable[..., Any], reps: int = 2000,
                          seed: int = 0, alpha: float = 0.05) -> tuple[float, float, float]:
     """(point, low, high): `stat` over all samples, and its percentile interval when every stratum
@@ -213,3 +214,45 @@ def stratified_bootstrap(strata: Sequence[np.ndarray], stat: Callable[..., Any],
     stats = stat(replicates, axis=1)
     lo, hi = np.quantile(stats, [alpha / 2, 1 - alpha / 2])
     return point, float(lo), float(hi)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the metric table
+# ---------------------------------------------------------------------------------------------------
+REDUCERS: dict[str, Callable[[np.ndarray], float]] = {"mean": np.mean, "median": np.median}
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One per-episode metric as tables show it.  `key` is its name in episode records; `aggregate`
+    names its reduction over an entry's played episodes (`REDUCERS`: "median" for heavy-tailed
+    errors, where one lost track would swamp a mean); `summary`: also a column of `deint run`'s table
+    (the leaderboard shows every metric)."""
+
+    key: str
+    label: str
+    fmt: str = ".3f"
+    aggregate: str = "mean"
+    higher_is_better: bool | None = True  # None: neither (e.g. a lag)
+    summary: bool = False
+
+    def reduce(self, values: list[float]) -> float | None:
+        return float(REDUCERS[self.aggregate](np.asarray(values, dtype=np.float64))) if values else None
+
+    def cell(self, value: Any) -> str:
+        return "-" if value is None or not math.isfinite(value) else format(value, self.fmt)
+
+
+# The headline: the normalised score, aggregated as IQM and mean with 95 % stratified-bootstrap intervals.
+SCORE = "score"
+METRICS: tuple[Metric, ...] = (
+    Metric("accuracy", "accuracy", summary=True),
+    Metric("matched_accuracy", "matched accuracy"),
+    Metric("mean_pe", "mean P_e", higher_is_better=False, summary=True),
+    Metric("v_measure", "V-measure", summary=True),
+    Metric("ari", "ARI"),
+    Metric("period_rel_error", "period rel. error", ".2e", "median", higher_is_better=False),
+    Metric("period_crlb_ratio", "period error / CRLB", ".3g", "median", higher_is_better=False),
+    Metric("us_per_pulse", "us/pulse", ".1f", higher_is_better=False, summary=True),
+    Metric("lag", "lag", ".0f", higher_is_better=None, summary=True),
+)

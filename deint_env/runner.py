@@ -2,38 +2,53 @@
 
 `evaluate(policies, target)` runs every (scenario, seed, policy) job of a suite split on a local
 process pool (or, with `executor="ray"`, as tasks on a Ray instance or cluster: the same records but
-for the wall-clock `us_per_pulse`), writes one JSON line per finished episode as it goes, and skips
-the jobs already in the file, so an interrupted run resumes where it stopped.  A job plays the policy through the env
-(`play`): the policy sees only observations and the public priors (oracles also get the episode) and
-its compute time is measured.  Each record also carries the episode's genie and random accuracies,
-so the normalised score (acc - random) / (genie - random) needs nothing else.
+for the wall-clock `us_per_pulse`), appends one `EpisodeRecord` line per finished episode to a results
+file as it goes (holding the file's writer lock, see `deint_env.results`), and skips the jobs already
+in it, so an interrupted run resumes where it stopped.  Records are keyed on the policy's canonical
+spec and its registry `version`: records of another version are stale and replayed, never mixed in.
+
+A job plays the policy through the env (`play`): the policy sees only observations and the public
+priors (oracles also get the episode) and its compute time is measured.  Each record also carries the
+episode's genie and random accuracies, so the normalised score (acc - random) / (genie - random) needs
+nothing else.  A policy that fails on an episode -- an exception, a label that is not an exact integer
+in range, a worker process that dies -- gets a fault record for it (its error, one line) and the run
+goes on; the summary lists faults and a rerun retries them.
+
+Pool workers ignore Ctrl-C (the parent stops them) and, on Linux, ask the kernel to kill them when the
+parent dies (prctl PR_SET_PDEATHSIG), so a killed run leaves no workers behind.  Elsewhere a killed
+parent's workers end when they next find the pool's queues gone.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
-import math
+import ctypes
 import os
 import signal
+import sys
 import time
+from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 
+from deint_env.aggregate import aggregate_entry
 from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import correct_anchored, correct_link
-from deint_env.metrics import AGGREGATES, estimation_metrics, matched_labels, normalised_score, stratified_bootstrap
-from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec
-from deint_env.progress import Progress
+from deint_env.metrics import estimation_metrics, matched_labels, normalised_score
+from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec, policy_info
+from deint_env.progress import progress_bar
+from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records, results_lock
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
+from deint_env.stats import have_rliable
 from deint_env.suites import find_entry, list_suites, load_suite
+from deint_env.tables import entry_table
 
 SPLITS = ("test", "train")
 EXECUTORS = ("local", "ray")
@@ -50,6 +65,14 @@ class PlayResult:
     seconds: float  # the policy's own time: reset + every act
 
 
+def check_label(action: Any, n_labels: int) -> None:
+    """A label must be an exact integer (a Python int or a numpy integer; bool is not one) in
+    [0, n_labels]: 1.7 is not silently truncated, nor "1" parsed."""
+    if isinstance(action, (bool, np.bool_)) or not isinstance(action, (int, np.integer)):
+        raise DeintError(f"action={action!r} is invalid: a label is an integer (int or numpy integer) in "
+                         f"[0, {n_labels}] ({n_labels} = spurious), not a {type(action).__name__}")
+
+
 def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool = False,
          clustering: bool = True) -> PlayResult:
     """Run `policy` over `episode` through the env; the policy sees observations and public priors."""
@@ -63,11 +86,13 @@ def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool
     t0 = clock()
     policy.reset(priors, info)
     spent = clock() - t0
-    step, act = env.step, policy.act
+    step, act, n_labels = env.step, policy.act, episode.n_labels
     while True:
         t0 = clock()
         action = act(obs)
         spent += clock() - t0
+        if type(action) is not int:  # the common case costs one type test
+            check_label(action, n_labels)
         obs, _, terminated, _, info = step(action)
         if terminated:
             break
@@ -94,7 +119,7 @@ def reference_accuracies(episode: Episode) -> tuple[float, float]:
 
 
 # ---------------------------------------------------------------------------------------------------
-# jobs and records
+# jobs
 # ---------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Job:
@@ -106,15 +131,12 @@ class Job:
     suite_hash: str | None = None
     tags: tuple[str, ...] = ()
     settings: dict[str, Any] = field(default_factory=dict)
+    policy_version: int = 1
 
     @property
-    def key(self) -> tuple:
-        return record_key({"policy": self.policy, "scenario": self.scenario["name"], "seed": self.seed,
-                           "scenario_hash": ScenarioSpec.from_dict(self.scenario).content_hash})
-
-
-def record_key(r: dict[str, Any]) -> tuple:
-    return r["policy"], r["scenario"], r["scenario_hash"], r["seed"]
+    def key(self) -> RecordKey:
+        return RecordKey(self.policy, self.scenario["name"], ScenarioSpec.from_dict(self.scenario).content_hash,
+                         self.seed, self.policy_version)
 
 
 def resolve_target(target: str) -> list[tuple[str | None, str | None, Any]]:
@@ -136,48 +158,67 @@ def make_jobs(policies: Iterable[str], target: str, split: str = "test", max_see
     for p in policies:
         name, kwargs = parse_policy_spec(p)
         make_policy(p)  # fail now, with one line, on an unknown policy or parameter
-        canon.append(canonical_spec(name, kwargs))
+        canon.append((canonical_spec(name, kwargs), policy_info(name).version))
     jobs = []
     for suite, suite_hash, entry in resolve_target(target):
         seeds = list(entry.test if split == "test" else entry.train)
         if max_seeds is not None:
             seeds = seeds[:max_seeds]
         spec = entry.spec.to_dict()
-        for policy in canon:
-            jobs.extend(Job(policy, spec, s, split, suite, suite_hash, entry.tags, entry.settings) for s in seeds)
+        for policy, version in canon:
+            jobs.extend(Job(policy, spec, s, split, suite, suite_hash, entry.tags, entry.settings, version)
+                        for s in seeds)
     return jobs
 
 
-def run_job(job: Job) -> dict[str, Any]:
-    """Play one job and return its record (a flat, JSON-ready dict)."""
+def one_line(e: BaseException) -> str:
+    """An error as one line: its type and the first line of its message."""
+    text = str(e).strip().splitlines()
+    return type(e).__name__ + (f": {text[0]}" if text else "")
+
+
+def _record(job: Job, spec: ScenarioSpec, **fields: Any) -> EpisodeRecord:
     from deint_env import __version__
 
+    return EpisodeRecord(
+        policy=job.policy, scenario=spec.name, scenario_hash=spec.content_hash, seed=job.seed, split=job.split,
+        suite=job.suite, suite_hash=job.suite_hash, tags=tuple(job.tags), settings=job.settings,
+        oracle=is_oracle(job.policy), version=__version__, policy_version=job.policy_version, **fields)
+
+
+def fault_record(job: Job, error: str) -> EpisodeRecord:
+    """The record of an episode the policy failed on (`error`: one line); the run goes on without it."""
     spec = ScenarioSpec.from_dict(job.scenario)
-    policy = make_policy(job.policy)
+    return _record(job, spec, lag=None, n_sources=simulate(spec, job.seed).truth.n_sources, fault=error)
+
+
+def run_job(job: Job) -> EpisodeRecord:
+    """Play one job and return its record.  A policy's exception (or a bad label) is its fault on this
+    episode: recorded, not raised."""
+    spec = ScenarioSpec.from_dict(job.scenario)
     episode = simulate(spec, job.seed)
-    rec: dict[str, Any] = {
-        "suite": job.suite, "suite_hash": job.suite_hash, "scenario": spec.name,
-        "scenario_hash": spec.content_hash, "tags": list(job.tags), "settings": job.settings,
-        "split": job.split, "seed": job.seed, "policy": job.policy, "oracle": is_oracle(job.policy),
-        "lag": policy.lag, "n_sources": episode.truth.n_sources, "version": __version__,
-    }
+    n_sources = episode.truth.n_sources
+    lag = None
     try:
+        policy = make_policy(job.policy)
+        lag = policy.lag
         res = play(policy, episode, policy_seed=job.seed, oracle=is_oracle(job.policy))
     except NotApplicable as e:  # outside the policy's scope: recorded, so a rerun does not retry it
-        return json_ready({**rec, "applicable": False, "reason": str(e)})
-    rec["applicable"] = True
+        return _record(job, spec, lag=lag, n_sources=n_sources, applicable=False, reason=str(e))
+    except Exception as e:  # noqa: BLE001 -- any failure of the policy is recorded for its episode
+        return _record(job, spec, lag=lag, n_sources=n_sources, fault=one_line(e))
     genie_acc, random_acc = reference_accuracies(episode)
-    rec.update(res.metrics)
-    rec.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
-               score=normalised_score(res.metrics["accuracy"], random_acc, genie_acc))
+    metrics: dict[str, Any] = dict(res.metrics)
+    metrics.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
+                   score=normalised_score(res.metrics["accuracy"], random_acc, genie_acc))
     if res.estimates is not None:
         mapping = None
         if episode.blind:  # track i estimates the source the Hungarian matching gives it
             lut = matched_labels(res.labels, episode.source, episode.n_labels)
             mapping = _label_of_source(res.labels, lut, episode.truth.n_sources, episode.n_labels)
-        rec.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
-    rec["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
-    return json_ready(rec)
+        metrics.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
+    metrics["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
+    return _record(job, spec, lag=lag, n_sources=n_sources, metrics=json_ready(metrics))
 
 
 def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_labels: int) -> np.ndarray:
@@ -188,62 +229,32 @@ def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_l
     return out
 
 
-def json_ready(x: Any) -> Any:
-    """Plain JSON types; NaN and infinities become null (strict JSON has neither)."""
-    if isinstance(x, dict):
-        return {k: json_ready(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [json_ready(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
-
-
-def read_records(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """Records of a results file.  A torn last line (a run killed mid-write) is cut off the file."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    text = path.read_text()
-    lines = text.split("\n")
-    records = []
-    for n, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            if n == len(lines):  # the unterminated last line: drop it, keep everything before
-                good = text[: len(text) - len(line)]
-                tmp = path.with_name(path.name + ".tmp")
-                tmp.write_text(good)
-                os.replace(tmp, path)
-                break
-            raise DeintError(f"{path}: line {n} is not a JSON record; fix or remove it") from None
-    return records
-
-
 # ---------------------------------------------------------------------------------------------------
 # many episodes
 # ---------------------------------------------------------------------------------------------------
-def _ignore_sigint() -> None:  # workers leave Ctrl-C to the parent, which stops them cleanly
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _worker_init(parent: int) -> None:
+    """Pool workers leave Ctrl-C to the parent (which stops them) and die with it (Linux)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent:  # the parent died before the request took effect
+            os._exit(1)
 
 
 def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_seeds: int | None = None,
              workers: int = 1, out: str | os.PathLike | None = None, progress: bool = True,
-             executor: str = "local", address: str | None = None) -> list[dict[str, Any]]:
+             executor: str = "local", address: str | None = None) -> list[EpisodeRecord]:
     """Run every job of `target` for every policy; return their records (resumed ones included).
 
-    With `out`, finished episodes are appended to that JSON-lines file as they complete and jobs
-    already in it are not run again.  `executor="local"` plays the jobs in this process (workers=1)
-    or on a local process pool; `executor="ray"` submits them as Ray tasks (see `_run_ray`) to a Ray
-    instance started here with `workers` CPUs, or to the cluster at `address` ("auto" = the one this
-    machine belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.
+    With `out`, finished episodes are appended to that results file as they complete (another process
+    writing it is refused with one line) and its records of these jobs are not played again (faults
+    aside: those are retried).  `executor="local"` plays the jobs in this process (workers=1) or on a
+    local process pool; `executor="ray"` submits them as Ray tasks (see `_run_ray`) to a Ray instance
+    started here with `workers` CPUs, or to the cluster at `address` ("auto" = the one this machine
+    belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.
     """
     if not isinstance(workers, int) or workers < 1:
         raise DeintError(f"workers={workers!r} is invalid: an integer >= 1")
@@ -252,65 +263,99 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
     if address is not None and executor != "ray":
         raise DeintError(f"address={address!r} needs executor='ray' (a Ray cluster address)")
     jobs = make_jobs(policies, target, split, max_seeds)
-    wanted = {j.key for j in jobs}
-    existing = [r for r in read_records(out) if record_key(r) in wanted] if out else []
-    have = {record_key(r) for r in existing}
-    todo = [j for j in jobs if j.key not in have]
-    records = list(existing)
-    sink = open(out, "a") if out else None
-    bar = Progress(len(todo), desc=f"{target}", enabled=progress)
+    with results_lock(out) if out else contextlib.nullcontext():
+        wanted = {j.key for j in jobs}
+        records = [r for r in read_records(out) if r.key in wanted and r.fault is None] if out else []
+        have = {r.key for r in records}
+        todo = [j for j in jobs if j.key not in have]
+        sink = ResultsWriter(out) if out else None
+        bar = progress_bar(len(todo), desc=target, enabled=progress)
 
-    def keep(rec: dict[str, Any]) -> None:
-        records.append(rec)
-        if sink is not None:
-            sink.write(json.dumps(rec, sort_keys=True) + "\n")  # one write per line: never a torn record
-            sink.flush()
-        bar.update()
+        def keep(rec: EpisodeRecord) -> None:
+            if sink is not None:
+                sink.append(rec)
+            if rec.fault is None:
+                records.append(rec)
+            else:
+                faults.append(rec)
+            bar.update(1)
 
+        faults: list[EpisodeRecord] = []
+        try:
+            if executor == "ray" and todo:
+                _run_ray(todo, workers, keep, address)
+            elif workers == 1 or len(todo) <= 1:
+                for job in todo:
+                    keep(run_job(job))
+            else:
+                _run_pool(todo, workers, keep)
+        except KeyboardInterrupt:
+            bar.close()
+            saved = f"; {len(records)} of {len(jobs)} episodes are saved in {out}, rerun to resume" if out else ""
+            raise KeyboardInterrupt(f"interrupted{saved}") from None
+        finally:
+            bar.close()
+            if sink is not None:
+                sink.close()
+    return records + faults
+
+
+@contextlib.contextmanager
+def _pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+    """A process pool that, on any exception (Ctrl-C included), is stopped without waiting for its
+    running jobs.  Futures are never cancelled by hand: the pool's manager thread would then fail
+    setting their result (InvalidStateError: CANCELLED) when the terminated workers break it."""
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init, initargs=(os.getpid(),))
     try:
-        if executor == "ray" and todo:
-            _run_ray(todo, workers, keep, address)
-        elif workers == 1 or len(todo) <= 1:
-            for job in todo:
-                keep(run_job(job))
-        else:
-            _run_pool(todo, workers, keep)
-    except KeyboardInterrupt:
-        bar.close()
-        saved = f"; {len(records)} of {len(jobs)} episodes are saved in {out}, rerun to resume" if out else ""
-        raise KeyboardInterrupt(f"interrupted{saved}") from None
-    finally:
-        if sink is not None:
-            sink.close()
-    bar.close()
-    return records
-
-
-def _run_pool(todo: list[Job], workers: int, keep) -> None:
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
-    try:
-        pending = {pool.submit(run_job, j) for j in todo}
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for f in done:
-                keep(f.result())
+        yield pool
     except BaseException:
-        for f in pending:
-            f.cancel()
-        for proc in list(getattr(pool, "_processes", {}).values()):  # running jobs are not worth waiting for
-            proc.terminate()
         pool.shutdown(wait=False, cancel_futures=True)
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                proc.terminate()
         raise
     pool.shutdown()
 
 
-def _run_ray(todo: list[Job], workers: int, keep, address: str | None) -> None:
+def _run_pool(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None]) -> None:
+    """Play the jobs on a process pool, at most two per worker in flight.  A worker that dies breaks
+    the pool and fails every job in flight; those are then replayed one by one, each in a pool of its
+    own, so that only the job that kills its worker gets the fault."""
+    queue, window = deque(todo), 2 * workers
+    while queue:
+        suspects: list[Job] = []
+        with _pool(workers) as pool:
+            running: dict[Any, Job] = {}
+            while queue or running:
+                while queue and len(running) < window and not suspects:
+                    job = queue.popleft()
+                    running[pool.submit(run_job, job)] = job
+                if not running:
+                    break
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for f in done:
+                    job = running.pop(f)
+                    try:
+                        keep(f.result())
+                    except BrokenProcessPool:
+                        suspects.append(job)
+        for job in suspects:
+            with _pool(1) as alone:
+                try:
+                    rec = alone.submit(run_job, job).result()
+                except BrokenProcessPool as e:
+                    rec = fault_record(job, f"the worker process died ({one_line(e)})")
+            keep(rec)
+
+
+def _run_ray(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None], address: str | None) -> None:
     """Play the jobs as Ray tasks and `keep` each record as it arrives (in completion order).
 
-    Without `address` a private Ray instance with `workers` CPUs is started and shut down at the end;
-    with one, the cluster there is joined (its nodes need deint-bench installed) and left running.
-    If Ray is already initialised in this process, that instance is used as it is.  At most four
-    tasks per cluster CPU are in flight, so an interrupt cancels little and memory stays flat.
+    Without `address` a private Ray instance with `workers` CPUs is started and shut down at the end
+    (in a `finally`, interrupts included); with one, the cluster there is joined (its nodes need
+    deint-bench installed) and left running.  If Ray is already initialised in this process, that
+    instance is used as it is.  At most four tasks per cluster CPU are in flight, so an interrupt
+    cancels little and memory stays flat.  A task whose worker dies is that job's fault.
     """
     try:
         import ray
@@ -319,87 +364,67 @@ def _run_ray(todo: list[Job], workers: int, keep, address: str | None) -> None:
     import logging
 
     started = not ray.is_initialized()
-    if started:
-        try:
-            if address is None:
-                ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
-            else:
-                ray.init(address=address, logging_level=logging.WARNING)
-        except ConnectionError as e:
-            raise DeintError(f"cannot reach a Ray cluster at {address!r} ({e})") from None
-    task = ray.remote(num_cpus=1, max_retries=0)(run_job)
-    pending: list[Any] = []
     try:
-        window = max(4 * int(ray.cluster_resources().get("CPU", workers)), 1)
-        queue = iter(todo)
-        for job in queue:
-            pending.append(task.remote(job))
-            if len(pending) >= window:
-                break
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for ref in done:
-                try:
-                    rec = ray.get(ref)
-                except ray.exceptions.RayTaskError as e:  # the job's own error, as the pool raises it
-                    cause = getattr(e, "cause", None)
-                    raise (cause if isinstance(cause, Exception) else e) from None
-                keep(rec)
-                nxt = next(queue, None)
-                if nxt is not None:
-                    pending.append(task.remote(nxt))
-    except BaseException:
-        for ref in pending:
-            with contextlib.suppress(Exception):
-                ray.cancel(ref, force=True)
-        raise
-    finally:
         if started:
+            try:
+                if address is None:
+                    ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
+                else:
+                    ray.init(address=address, logging_level=logging.WARNING)
+            except ConnectionError as e:
+                raise DeintError(f"cannot reach a Ray cluster at {address!r} ({e})") from None
+        task = ray.remote(num_cpus=1, max_retries=0)(run_job)
+        pending: dict[Any, Job] = {}
+        try:
+            window = max(4 * int(ray.cluster_resources().get("CPU", workers)), 1)
+            queue = deque(todo)
+            while queue or pending:
+                while queue and len(pending) < window:
+                    job = queue.popleft()
+                    pending[task.remote(job)] = job
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    job = pending.pop(ref)
+                    try:
+                        rec = ray.get(ref)
+                    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as e:
+                        rec = fault_record(job, f"the Ray worker died ({one_line(e)})")
+                    except ray.exceptions.RayTaskError as e:  # the job's own error, as the pool raises it
+                        cause = getattr(e, "cause", None)
+                        raise (cause if isinstance(cause, Exception) else e) from None
+                    keep(rec)
+        except BaseException:
+            for ref in pending:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+            raise
+    finally:
+        if started and ray.is_initialized():
             ray.shutdown()
 
 
 # ---------------------------------------------------------------------------------------------------
 # summaries
 # ---------------------------------------------------------------------------------------------------
-def summarise(records: list[dict[str, Any]], reps: int = 2000, seed: int = 0) -> list[dict[str, Any]]:
-    """Per policy: episode count, mean metrics, and the normalised score's mean and IQM with
-    stratified-bootstrap 95 % intervals (strata = scenarios).  Episodes a policy cannot play (not
-    applicable) are left out of its scores and counted in `coverage`."""
+def summarise(records: list[EpisodeRecord], reps: int = 2000, seed: int = 0) -> list[dict[str, Any]]:
+    """Per policy, the row `deint_env.aggregate.aggregate_entry` makes (the leaderboard's own path):
+    counts, coverage and faults, every metric of the metric table, and the normalised score's IQM and
+    mean with stratified-bootstrap 95 % intervals (strata = scenarios; the intervals need rliable and
+    are NaN without it).  Records of one scenario are taken in seed order."""
+    by_policy: dict[str, list[EpisodeRecord]] = {}
+    for r in sorted(records, key=lambda r: (r.policy, r.scenario, r.seed)):
+        by_policy.setdefault(r.policy, []).append(r)
+    intervals = have_rliable()
     rows = []
-    for policy in sorted({r["policy"] for r in records}):
-        every = [r for r in records if r["policy"] == policy]
-        rs = [r for r in every if r.get("applicable", True)]
-        strata: dict[str, list[float]] = {}
-        for r in rs:
-            if r.get("score") is not None:
-                strata.setdefault(r["scenario"], []).append(r["score"])
-        row: dict[str, Any] = {"policy": policy, "episodes": len(rs), "coverage": len(rs) / len(every),
-                               "oracle": bool(every[0].get("oracle"))}
-        for name, fn in AGGREGATES.items():
-            point, lo, hi = stratified_bootstrap([np.array(v) for v in strata.values()], fn, reps, seed)
-            row[f"score_{name}"], row[f"score_{name}_low"], row[f"score_{name}_high"] = point, lo, hi
-        for key in ("accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari", "period_rel_error",
-                    "period_crlb_ratio", "us_per_pulse", "lag"):
-            vals = [r[key] for r in rs if r.get(key) is not None]
-            row[key] = float(np.mean(vals)) if vals else math.nan
-        rows.append(row)
+    for policy, recs in by_policy.items():
+        groups = {"all": sorted({r.scenario for r in recs})}
+        rows.append(aggregate_entry(recs, groups, reps=reps, seed=seed, intervals=intervals).row)
     return rows
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
-    head = ["policy", "episodes", "coverage", "accuracy", "score IQM [95% CI]", "score mean", "mean P_e",
-            "V-measure", "us/pulse", "lag"]
-    def f(v: float, spec: str = ".3f") -> str:
-        return "-" if v is None or not math.isfinite(v) else format(v, spec)
-
-    body = []
-    for r in rows:
-        name = r["policy"] + (" (oracle)" if r["oracle"] else "")
-        body.append([name, str(r["episodes"]), f"{r['coverage']:.0%}", f(r["accuracy"]),
-                     f"{f(r['score_iqm'])} [{f(r['score_iqm_low'])}, {f(r['score_iqm_high'])}]",
-                     f(r["score_mean"]), f(r["mean_pe"]), f(r["v_measure"]), f(r["us_per_pulse"], ".1f"),
-                     f(r["lag"], ".0f")])
-    widths = [max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)]
-    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths)), "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body]
-    return "\n".join(lines)
+    """`summarise`'s rows as `deint run` prints them, faulted episodes listed below."""
+    out = entry_table(rows, summary=True)
+    if rows and not have_rliable():
+        out += "\n(no intervals: they need rliable: pip install 'deint-bench[leaderboard]')"
+    return out

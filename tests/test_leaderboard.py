@@ -12,7 +12,8 @@ import pytest
 
 from deint_env import runner
 from deint_env.cli import main
-from deint_env.leaderboard import Scope, build, default_policies, stats, write
+from deint_env import stats
+from deint_env.leaderboard import Scope, build, default_policies, write
 from deint_env.metrics import iqm, mean, stratified_bootstrap
 
 SUITE = "core-v0"

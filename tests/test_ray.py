@@ -11,10 +11,11 @@ import json
 
 import pytest
 import ray
+from tqdm import tqdm
 
 from deint_env.cli import main
 from deint_env.errors import DeintError
-from deint_env.runner import evaluate, read_records, record_key
+from deint_env.runner import evaluate, read_records
 
 TARGET = "paper-v0/mk94-two-var1"
 POLICIES = ["genie", "random", "nearest-prior"]
@@ -31,17 +32,16 @@ def local_ray():
         ray.shutdown()
 
 
-def comparable(records: list[dict]) -> dict[tuple, dict]:
-    return {record_key(r): {k: v for k, v in r.items() if k not in WALL_CLOCK} for r in records}
+def comparable(records: list) -> dict:
+    return {r.key: {k: v for k, v in r.to_json().items() if k not in WALL_CLOCK} for r in records}
 
 
 def test_own_ray_instance_interrupted_then_resumed(tmp_path, monkeypatch):
     """Without a running instance the runner starts one and always shuts it down; an interrupt keeps
     the finished episodes, and a rerun (here on the process pool) plays only the rest."""
-    import deint_env.runner as runner
 
     assert not ray.is_initialized()
-    real, seen = runner.Progress.update, []
+    real, seen = tqdm.update, []
 
     def interrupt_after_three(self, *args, **kwargs):
         seen.append(1)
@@ -49,12 +49,12 @@ def test_own_ray_instance_interrupted_then_resumed(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(self, *args, **kwargs)
 
-    monkeypatch.setattr(runner.Progress, "update", interrupt_after_three)
+    monkeypatch.setattr(tqdm, "update", interrupt_after_three)
     out = tmp_path / "res.jsonl"
     with pytest.raises(KeyboardInterrupt, match="interrupted; 3 of 6 episodes are saved"):
         evaluate(["genie", "random"], TARGET, max_seeds=3, workers=2, progress=False, out=out, executor="ray")
     assert not ray.is_initialized() and len(out.read_text().splitlines()) == 3
-    monkeypatch.setattr(runner.Progress, "update", real)
+    monkeypatch.setattr(tqdm, "update", real)
     records = evaluate(["genie", "random"], TARGET, max_seeds=3, workers=2, progress=False, out=out)
     assert len(records) == 6 and len(out.read_text().splitlines()) == 6
 
@@ -74,8 +74,8 @@ def test_ray_resumes_a_file_the_pool_started(local_ray, tmp_path):
     first = evaluate(["random"], TARGET, max_seeds=2, workers=2, progress=False, out=out)
     both = evaluate(["random", "genie"], TARGET, max_seeds=2, progress=False, out=out, executor="ray")
     lines = out.read_text().splitlines()
-    assert len(lines) == 4 and lines[:2] == [json.dumps(r, sort_keys=True) for r in first]
-    assert {r["policy"] for r in both} == {"random", "genie"}
+    assert len(lines) == 4 and lines[:2] == [r.line().rstrip("\n") for r in first]
+    assert {r.policy for r in both} == {"random", "genie"}
     again = evaluate(["random", "genie"], TARGET, max_seeds=2, progress=False, out=out, executor="ray")
     assert len(out.read_text().splitlines()) == 4 and comparable(again) == comparable(both)
 

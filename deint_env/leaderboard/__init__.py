@@ -13,8 +13,10 @@
 
 Bootstraps are seeded and files hold no timestamps: rebuilding from the same results gives the same
 bytes, the measured `us_per_pulse` aside.  Outside labels enter through `submit` (format in
-`deint_env.leaderboard.submit`).  Modules: `build` (running, aggregating), `stats` (rliable),
-`render` (JSON, CSV, README, HTML), `plots` (PNG), `submit` (submissions and `export`).
+`deint_env.leaderboard.submit`).  Modules: `build` (running, aggregating through
+`deint_env.aggregate`, the path `deint run`'s summary takes too, with `deint_env.stats`' rliable
+estimates), `render` (JSON, CSV, README, HTML, and publishing every file together), `plots` (PNG),
+`submit` (submissions and `export`).  Columns come from the metric table `deint_env.metrics.METRICS`.
 """
 
 from deint_env.leaderboard.build import LEADERBOARD_SUITES, Scope, build, default_policies, write

@@ -17,18 +17,19 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from deint_env import policies
+from deint_env import metrics, stats
+from deint_env.aggregate import aggregate_entry
 from deint_env.errors import DeintError
-from deint_env.leaderboard import stats
-from deint_env.runner import evaluate, json_ready, read_records
+from deint_env import policies
+from deint_env.policies import parse_policy_spec, policy_info
+from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
+from deint_env.runner import evaluate
 from deint_env.suites import TAGS, SuiteEntry, load_suite
 
 LEADERBOARD_SUITES = ("paper-v0", "core-v0", "robust-v0", "agile-v0")
 DEFAULT_ROOT = Path("leaderboards")
 RESULTS = "results.jsonl"
 TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
-MEANS = ("accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari", "us_per_pulse", "lag")
-MEDIANS = ("period_rel_error", "period_crlb_ratio")  # heavy-tailed: a lost track's error is huge
 
 
 def default_policies() -> list[str]:
@@ -104,38 +105,38 @@ def build(scope: Scope, policies: Iterable[str], *, workers: int | None = None, 
     except OSError as e:
         raise DeintError(f"{folder}: cannot create the leaderboard folder ({e.strerror or e})") from None
     policies = list(policies)
-    if policies:
-        targets = [scope.suite] if scope.scenarios is None else [f"{scope.suite}/{e.name}" for e in scope.entries()]
-        for target in targets:
-            evaluate(policies, target, split="test", max_seeds=scope.max_seeds, workers=workers or workers_default(),
-                     out=folder / RESULTS, progress=progress, executor=executor, address=address)
-    return folder, write(folder, scope, reps=reps)
+    with results_lock(folder / RESULTS):  # one build at a time: its run and its publishing
+        if policies:
+            targets = [scope.suite] if scope.scenarios is None else [f"{scope.suite}/{e.name}" for e in scope.entries()]
+            for target in targets:
+                evaluate(policies, target, split="test", max_seeds=scope.max_seeds,
+                         workers=workers or workers_default(), out=folder / RESULTS, progress=progress,
+                         executor=executor, address=address)
+        return folder, write(folder, scope, reps=reps)
 
 
-def write(folder: Path, scope: Scope, records: list[dict[str, Any]] | None = None, reps: int = 2000) -> dict[str, Any]:
-    """Aggregate `records` (default: the folder's results.jsonl) and write every file of the folder.
-
-    Everything is rendered in memory first; each file is then replaced atomically.
-    """
+def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None,
+          reps: int = 2000) -> dict[str, Any]:
+    """Aggregate `records` (default: the folder's results.jsonl) and publish every file of the folder
+    together (`render.publish`: all are staged first, so a failure leaves the old folder as it was),
+    holding the results file's writer lock."""
     from deint_env.leaderboard import plots, render
 
-    records = read_records(folder / RESULTS) if records is None else records
-    board, profiles = aggregate(records, scope, reps=reps)
-    files = {RESULTS: results_text(records)}
-    files.update(render.render_all(board))
-    files.update(plots.render_all(board, profiles))
-    for stale in folder.glob("score_vs_*.png"):
-        if stale.name not in files:
-            stale.unlink()
-    for name, data in files.items():
-        render.write_file(folder / name, data)
+    with results_lock(folder / RESULTS):
+        records = read_records(folder / RESULTS) if records is None else records
+        board, profiles = aggregate(records, scope, reps=reps)
+        files = {RESULTS: results_text(records)}
+        files.update(render.render_all(board))
+        files.update(plots.render_all(board, profiles))
+        obsolete = [p.name for p in folder.glob("score_vs_*.png") if p.name not in files]
+        render.publish(folder, files, obsolete)
     return board
 
 
-def results_text(records: list[dict[str, Any]]) -> str:
+def results_text(records: list[EpisodeRecord]) -> str:
     """results.jsonl in canonical order (policy, scenario, seed): reruns leave it byte-identical."""
-    key = lambda r: (r["policy"], r["scenario"], r["seed"], r["scenario_hash"])  # noqa: E731
-    return "".join(json.dumps(r, sort_keys=True) + "\n" for r in sorted(records, key=key))
+    key = lambda r: (r.policy, r.scenario, r.seed, r.scenario_hash, r.policy_version)  # noqa: E731
+    return "".join(r.line() for r in sorted(records, key=key))
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -169,27 +170,36 @@ def _groups(entries: list[SuiteEntry]) -> tuple[dict[str, list[str]], list[str]]
     return groups, tags
 
 
-def _kind(rec: dict[str, Any]) -> str:
-    return "submitted" if rec.get("submitted") else "oracle" if rec.get("oracle") else "policy"
+def current_version(rec: EpisodeRecord) -> int | None:
+    """The registry's version of the record's policy (None: a submission, or not registered here)."""
+    if rec.submitted:
+        return None
+    try:
+        return policy_info(parse_policy_spec(rec.policy)[0]).version
+    except DeintError:
+        return None
 
 
-def _finite(values: Iterable[Any]) -> list[float]:
-    return [float(v) for v in values if v is not None and math.isfinite(v)]
-
-
-def aggregate(records: list[dict[str, Any]], scope: Scope, reps: int = 2000,
+def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
               seed: int = 0) -> tuple[dict[str, Any], dict[str, tuple[np.ndarray, ...]]]:
-    """The leaderboard (JSON-ready, floats unrounded) and each entry's performance profile."""
+    """The leaderboard (JSON-ready, floats unrounded) and each entry's performance profile.  Records of
+    another version of their policy than the registry's are stale: counted, never aggregated."""
     from deint_env import __version__
 
     suite = load_suite(scope.suite)
     entries = scope.entries()
     expected = {(e.name, e.spec.content_hash, s) for e, s in scope.episodes()}
-    by_policy: dict[str, dict[tuple, dict[str, Any]]] = {}
+    by_policy: dict[str, dict[tuple, EpisodeRecord]] = {}
+    stale: dict[str, int] = {}
     for r in records:
-        key = (r["scenario"], r["scenario_hash"], r["seed"])
-        if key in expected:
-            by_policy.setdefault(r["policy"], {})[key] = r
+        key = (r.scenario, r.scenario_hash, r.seed)
+        if key not in expected:
+            continue
+        version = current_version(r)
+        if version is not None and r.policy_version != version:
+            stale[r.policy] = stale.get(r.policy, 0) + 1
+            continue
+        by_policy.setdefault(r.policy, {})[key] = r
     groups, tags = _groups(entries)
     order = {e.name: i for i, e in enumerate(entries)}
     rows, profiles, strata_of, incomplete = [], {}, {}, {}
@@ -198,26 +208,13 @@ def aggregate(records: list[dict[str, Any]], scope: Scope, reps: int = 2000,
         if len(got) < len(expected):
             incomplete[policy] = len(got)
             continue
-        recs = sorted(got.values(), key=lambda r: (order[r["scenario"]], r["seed"]))
-        played = [r for r in recs if r.get("applicable", True)]
-        strata: dict[str, list[float]] = {}
-        for r in played:
-            if r.get("score") is not None:
-                strata.setdefault(r["scenario"], []).append(r["score"])
-        strata_of[policy] = strata
-        est, profiles[policy] = stats.estimates(strata, groups, stats.TAUS, reps=reps, seed=seed)
-        row: dict[str, Any] = {
-            "policy": policy, "kind": _kind(recs[0]), "oracle": bool(recs[0].get("oracle")),
-            "submitted": bool(recs[0].get("submitted")), "episodes": len(recs), "played": len(played),
-            "scored": sum(map(len, strata.values())), "coverage": len(played) / len(recs),
-            "version": ",".join(sorted({str(r.get("version")) for r in recs})),
-        }
-        for name in ("iqm", "mean"):
-            row[f"score_{name}"], row[f"score_{name}_low"], row[f"score_{name}_high"] = est["all"][name]
-        for key in MEANS + MEDIANS:
-            vals = _finite(r.get(key) for r in played)
-            row[key] = (float(np.median(vals)) if key in MEDIANS else float(np.mean(vals))) if vals else None
-        row["tags"] = {t: _flat(est[f"tag:{t}"], sum(len(strata.get(s, ())) for s in groups[f"tag:{t}"]))
+        recs = sorted(got.values(), key=lambda r: (order[r.scenario], r.seed))
+        agg = aggregate_entry(recs, groups, taus=stats.TAUS, reps=reps, seed=seed)
+        strata_of[policy], profiles[policy], est = agg.strata, agg.profile, agg.groups
+        row = dict(agg.row)
+        row["version"] = ",".join(sorted({r.version for r in recs}))
+        row["policy_version"] = None if recs[0].submitted else recs[0].policy_version
+        row["tags"] = {t: _flat(est[f"tag:{t}"], sum(len(agg.strata.get(s, ())) for s in groups[f"tag:{t}"]))
                        for t in tags}
         row["by_setting"] = {key: [{"value": v, **_flat(est[setting_group(key, v)])} for v in values]
                              for key, values in plot_settings(entries).items()}
@@ -231,7 +228,9 @@ def aggregate(records: list[dict[str, Any]], scope: Scope, reps: int = 2000,
         "bootstrap": {"reps": reps, "seed": seed, "confidence": stats.CONFIDENCE, "strata": "scenarios",
                       "interval": "percentile"},
         "rows": rows, "probability_of_improvement": _improvements(rows, strata_of, reps, seed),
-        "incomplete": incomplete,
+        "incomplete": incomplete, "stale": stale,
+        "metrics": [{"key": m.key, "label": m.label, "aggregate": m.aggregate, "higher_is_better": m.higher_is_better}
+                    for m in metrics.METRICS],  # how to read each row's metric columns
     }
     return json_ready(board), profiles
 

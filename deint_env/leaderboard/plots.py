@@ -11,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from deint_env.leaderboard.stats import TAUS
-from deint_env.leaderboard.render import display_name, tidy
+from deint_env.leaderboard.render import tidy
+from deint_env.stats import TAUS
+from deint_env.tables import display_name
 
 
 def _pyplot():

@@ -16,11 +16,14 @@ import json
 import math
 import os
 import re
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from deint_env.errors import DeintError
+from deint_env import metrics
+from deint_env.tables import display_name, entry_columns, fault_lines, interval, markdown_table, num
 
 PLOTS_DOC = {
     "intervals.png": "interval estimates: score IQM and mean per entry with 95 % stratified-bootstrap intervals",
@@ -28,21 +31,62 @@ PLOTS_DOC = {
 }
 
 
-def write_file(path: Path, data: str | bytes) -> None:
-    """Write `data` to a temporary file beside `path`, then rename it over `path`."""
+def _fill(f: Any, raw: bytes) -> None:
+    f.write(raw)
+
+
+def _replace(path: Path, data: str | bytes) -> None:
+    """Write `data` to a temporary file beside `path`, then rename it over `path` (OSError on failure)."""
     raw = data.encode("utf-8") if isinstance(data, str) else data
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
-            f.write(raw)
+            _fill(f, raw)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except OSError as e:
+    except OSError:
         if tmp is not None:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
+        raise
+
+
+def write_file(path: Path, data: str | bytes) -> None:
+    """Replace `path` by `data` atomically, or raise one `DeintError` line naming it."""
+    try:
+        _replace(path, data)
+    except OSError as e:
         raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
+
+
+STAGING = ".staging"
+
+
+def publish(folder: Path, files: dict[str, str | bytes], obsolete: list[str] = ()) -> None:
+    """Publish `files` into `folder` all together or not at all: every file is first written into
+    `folder/.staging` (where a full disk or any other failure stops it, the folder untouched), then
+    each is renamed into place -- renames within one file system need no space -- and the `obsolete`
+    files are removed.  Call with the folder's results lock held."""
+    stage = folder / STAGING
+    shutil.rmtree(stage, ignore_errors=True)  # left by a run killed while publishing
+    try:
+        stage.mkdir()
+        for name, data in files.items():
+            try:
+                _replace(stage / name, data)
+            except OSError as e:
+                raise DeintError(f"{folder / name}: cannot write, nothing was published "
+                                 f"({e.strerror or e})") from None
+        for name in files:
+            os.replace(stage / name, folder / name)
+        for name in obsolete:
+            with contextlib.suppress(FileNotFoundError):
+                (folder / name).unlink()
+    except OSError as e:
+        raise DeintError(f"{folder}: cannot publish the leaderboard ({e.strerror or e})") from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def tidy(x: Any) -> Any:
@@ -66,52 +110,26 @@ def render_all(board: dict[str, Any]) -> dict[str, str]:
 # ---------------------------------------------------------------------------------------------------
 # cells
 # ---------------------------------------------------------------------------------------------------
-def num(v: Any, spec: str = ".3f") -> str:
-    return "-" if v is None else format(v, spec)
+def csv_fields() -> list[str]:
+    return (["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean", "score_mean_low",
+             "score_mean_high"] + [m.key for m in metrics.METRICS]
+            + ["coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version",
+               "policy_version"])
 
 
-def interval(d: dict[str, Any], name: str) -> str:
-    if d.get(name) is None:
-        return "-"
-    return f"{num(d[name])} [{num(d[name + '_low'])}, {num(d[name + '_high'])}]"
-
-
-def display_name(row: dict[str, Any]) -> str:
-    return row["policy"] + (" (oracle)" if row["oracle"] else "")
-
-
-# One column of the main table: header, row -> cell text, row -> sort value (None = missing).
-COLUMNS: list[tuple[str, Any, Any]] = [
-    ("rank", lambda r: num(r["rank"], "d"), lambda r: r["rank"]),
-    ("policy", display_name, lambda r: r["policy"]),
-    ("score IQM [95% CI]", lambda r: interval(r, "score_iqm"), lambda r: r["score_iqm"]),
-    ("score mean [95% CI]", lambda r: interval(r, "score_mean"), lambda r: r["score_mean"]),
-    ("accuracy", lambda r: num(r["accuracy"]), lambda r: r["accuracy"]),
-    ("mean P_e", lambda r: num(r["mean_pe"]), lambda r: r["mean_pe"]),
-    ("V-measure", lambda r: num(r["v_measure"]), lambda r: r["v_measure"]),
-    ("ARI", lambda r: num(r["ari"]), lambda r: r["ari"]),
-    ("period rel. error", lambda r: num(r["period_rel_error"], ".2e"), lambda r: r["period_rel_error"]),
-    ("period error / CRLB", lambda r: num(r["period_crlb_ratio"], ".3g"), lambda r: r["period_crlb_ratio"]),
-    ("us/pulse", lambda r: num(r["us_per_pulse"], ".1f"), lambda r: r["us_per_pulse"]),
-    ("lag", lambda r: num(r["lag"], ".0f"), lambda r: r["lag"]),
-    ("coverage", lambda r: f"{r['coverage']:.0%}", lambda r: r["coverage"]),
-]
-
-CSV_FIELDS = ["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean",
-              "score_mean_low", "score_mean_high", "accuracy", "matched_accuracy", "mean_pe", "v_measure", "ari",
-              "period_rel_error", "period_crlb_ratio", "us_per_pulse", "lag", "coverage", "played", "scored",
-              "episodes", "oracle", "submitted", "version"]
 TAG_FIELDS = ["iqm", "iqm_low", "iqm_high", "mean", "mean_low", "mean_high", "scored"]
 
 
 def render_csv(board: dict[str, Any]) -> str:
-    head = CSV_FIELDS + ["suite", "suite_version", "suite_hash"]
+    fields = csv_fields()
+    head = fields + ["suite", "suite_version", "suite_hash"]
     head += [f"tag_{t}_{f}" for t in board["tags"] for f in TAG_FIELDS]
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(head)
     for r in board["rows"]:
-        cells = [r[k] for k in CSV_FIELDS] + [board["suite"], board["suite_version"], board["suite_hash"]]
+        cells = [len(r[k]) if k == "faults" else r[k] for k in fields]
+        cells += [board["suite"], board["suite_version"], board["suite_hash"]]
         cells += [r["tags"][t][f] for t in board["tags"] for f in TAG_FIELDS]
         w.writerow(["" if c is None else str(c).lower() if isinstance(c, bool) else c for c in cells])
     return out.getvalue()
@@ -120,12 +138,6 @@ def render_csv(board: dict[str, Any]) -> str:
 # ---------------------------------------------------------------------------------------------------
 # README.md
 # ---------------------------------------------------------------------------------------------------
-def _md_table(head: list[str], body: list[list[str]]) -> list[str]:
-    esc = lambda s: s.replace("|", "\\|")  # noqa: E731
-    return ["| " + " | ".join(map(esc, head)) + " |", "|" + "---|" * len(head)] + [
-        "| " + " | ".join(map(esc, row)) + " |" for row in body]
-
-
 def _scope_text(b: dict[str, Any]) -> str:
     scope = b["scope"]
     if scope["scenarios"] is None and scope["max_seeds"] is None:
@@ -173,12 +185,30 @@ def explanation(b: dict[str, Any]) -> list[str]:
         "averaged over scenarios. Coverage is the share of episodes a policy can play (a prior-based policy "
         "cannot play a blind scenario, say): its scores are over those only. Oracles see the truth; they are "
         "ceilings, not methods, and get no rank; so do entries that cannot play every episode (coverage "
-        "below 100 %), listed after the ranked ones because their scores are over a subset. The period "
+        "below 100 %), listed after the ranked ones because their scores are over a subset. Faults are "
+        "episodes where a policy failed (an exception, a label that is not an integer in range, a dead worker "
+        "process): they are not scored, lower its coverage and are listed under the table. The period "
         "errors are medians over episodes of the final "
         "period estimates' mean relative error and of their RMS error over the Cramer-Rao bound (1 = "
         "efficient), for policies that report estimates. us/pulse is the policy's own compute time "
         "(measured on the machine that ran it: it varies between runs and machines).",
     ]
+
+
+def notes(b: dict[str, Any]) -> list[str]:
+    """What the table leaves out or scores on fewer episodes: incomplete and stale entries, faults."""
+    out = []
+    if b["incomplete"]:
+        out.append("Not shown, incomplete (rerun `deint leaderboard` to finish): " + ", ".join(
+            f"{p} ({n} of {b['episodes']} episodes)" for p, n in sorted(b["incomplete"].items())))
+    if b["stale"]:
+        out.append("Not shown, stale (recorded with another version of the policy; rerun `deint leaderboard` "
+                   "to replay): " + ", ".join(f"{p} ({n} episodes)" for p, n in sorted(b["stale"].items())))
+    faults = fault_lines(b["rows"])
+    if faults:
+        out.append(f"Faults: {len(faults)} episode(s) where a policy failed, not scored (its coverage is lower "
+                   "and it is not ranked; rerun `deint leaderboard` to retry): " + "; ".join(faults))
+    return out
 
 
 def render_readme(b: dict[str, Any]) -> str:
@@ -189,17 +219,16 @@ def render_readme(b: dict[str, Any]) -> str:
              "Generated by `deint leaderboard`; the same numbers are in [leaderboard.json](leaderboard.json) "
              "and [leaderboard.csv](leaderboard.csv), the episodes in [results.jsonl](results.jsonl), and a "
              "sortable page in [index.html](index.html).", ""]
-    lines += _md_table([c[0] for c in COLUMNS], [[c[1](r) for c in COLUMNS] for r in b["rows"]])
-    if b["incomplete"]:
-        lines += ["", "Not shown, incomplete (rerun `deint leaderboard` to finish): "
-                  + ", ".join(f"{p} ({n} of {b['episodes']} episodes)" for p, n in sorted(b["incomplete"].items()))]
+    cols = entry_columns()
+    lines += markdown_table([c.head for c in cols], [[c.cell(r) for c in cols] for r in b["rows"]])
+    lines += [line for note in notes(b) for line in ("", note)]
     if b["tags"]:
         lines += ["", "## Scores per tag", "", "Score IQM [95 % CI] over the scenarios carrying each tag.", ""]
-        lines += _md_table(["policy"] + b["tags"],
+        lines += markdown_table(["policy"] + b["tags"],
                            [[display_name(r)] + [interval(r["tags"][t], "iqm") for t in b["tags"]] for r in b["rows"]])
     if b["probability_of_improvement"]:
         lines += ["", "## Probability of improvement", "", "Between the top-ranked entries:", ""]
-        lines += _md_table(["X", "Y", "P(X > Y) [95% CI]", "scenarios"], _improvement_body(b))
+        lines += markdown_table(["X", "Y", "P(X > Y) [95% CI]", "scenarios"], _improvement_body(b))
     lines += ["", "## How to read it", ""] + explanation(b)
     plots = plot_files(b)
     if plots:
@@ -264,6 +293,7 @@ def _md_inline(text: str) -> str:
 
 def render_html(b: dict[str, Any]) -> str:
     e = html.escape
+    cols = entry_columns()
     tabs = [("tab-all", "all scenarios")] + [(f"tab-tag-{t}", t) for t in b["tags"]]
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              f"<title>deint-bench leaderboard: {e(b['suite'])}</title>", f"<style>{STYLE}</style></head><body>",
@@ -275,7 +305,7 @@ def render_html(b: dict[str, Any]) -> str:
                  f'<button data-tab="{tid}"{" class=on" if k == 0 else ""}>{e(name)}</button>'
                  for k, (tid, name) in enumerate(tabs)) + "</nav>",
              '<section class="tab" id="tab-all">',
-             _html_table("board", [c[0] for c in COLUMNS], [[(c[1](r), c[2](r)) for c in COLUMNS] for r in b["rows"]]),
+             _html_table("board", [c.head for c in cols], [[(c.cell(r), c.value(r)) for c in cols] for r in b["rows"]]),
              "</section>"]
     for t in b["tags"]:
         rows = []
@@ -287,9 +317,7 @@ def render_html(b: dict[str, Any]) -> str:
                   f"<p>Scores over the scenarios tagged <code>{e(t)}</code>.</p>",
                   _html_table(f"tag-{e(t)}", ["policy", "score IQM [95% CI]", "score mean [95% CI]", "episodes"],
                               rows), "</section>"]
-    if b["incomplete"]:
-        parts.append("<p>Not shown, incomplete: " + e(", ".join(
-            f"{p} ({n} of {b['episodes']} episodes)" for p, n in sorted(b["incomplete"].items()))) + "</p>")
+    parts += [f"<p>{e(note)}</p>" for note in notes(b)]
     if b["probability_of_improvement"]:
         rows = [[(x, x), (y, y), (ci, p["p"]), (n, p["scenarios"])]
                 for (x, y, ci, n), p in zip(_improvement_body(b), b["probability_of_improvement"])]

@@ -48,8 +48,9 @@ from deint_env.formats.json_files import check_depth
 from deint_env.formats.npz import read_npz
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
 from deint_env.leaderboard.render import write_file
-from deint_env.progress import Progress
-from deint_env.runner import json_ready, read_records, reference_accuracies
+from deint_env.progress import progress_bar
+from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
+from deint_env.runner import reference_accuracies
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.suites import load_suite
@@ -216,7 +217,7 @@ def _check_name(name: str | None) -> str:
 
 
 def episode_record(scope: Scope, entry: Any, seed: int, episode: Any, file_labels: np.ndarray,
-                   policy: str) -> dict[str, Any]:
+                   policy: str) -> EpisodeRecord:
     """A results record for labels made elsewhere: the fields and metrics of `runner.run_job`."""
     from deint_env import __version__
     from deint_env.metrics import label_metrics, normalised_score
@@ -231,11 +232,11 @@ def episode_record(scope: Scope, entry: Any, seed: int, episode: Any, file_label
            "n_sources": episode.truth.n_sources, "version": __version__, "applicable": True, **metrics,
            "genie_accuracy": genie_acc, "random_accuracy": random_acc,
            "score": normalised_score(metrics["accuracy"], random_acc, genie_acc), "us_per_pulse": None}
-    return json_ready(rec)
+    return EpisodeRecord.from_json(json_ready(rec))
 
 
 def score_submission(path: str | os.PathLike, scope: Scope, name: str | None = None,
-                     progress: bool = True) -> tuple[str, list[dict[str, Any]]]:
+                     progress: bool = True) -> tuple[str, list[EpisodeRecord]]:
     """Validate a submission against the scope's test episodes and score it: (entry name, records).
     The first problem found is one `DeintError` line naming the file, the place and the episode."""
     path = Path(path)
@@ -246,7 +247,7 @@ def score_submission(path: str | os.PathLike, scope: Scope, name: str | None = N
     entries = {e.name: e for e in scope.entries()}
     first_at: dict[tuple[str, int], str] = {}
     records = []
-    bar = Progress(len(items), desc=f"scoring {name}", enabled=progress)
+    bar = progress_bar(len(items), desc=f"scoring {name}", enabled=progress)
     for item in items:
         episode_name = f"scenario {item.scenario}, seed {item.seed}"
 
@@ -301,8 +302,9 @@ def submit(path: str | os.PathLike, suite: str, name: str | None = None, *, root
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise DeintError(f"{folder}: cannot create the leaderboard folder ({e.strerror or e})") from None
-    records = [r for r in read_records(folder / RESULTS) if r["policy"] != policy] + new
-    return policy, write(folder, scope, records, reps=reps)
+    with results_lock(folder / RESULTS):
+        records = [r for r in read_records(folder / RESULTS) if r.policy != policy] + new
+        return policy, write(folder, scope, records, reps=reps)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -336,7 +338,7 @@ def export(scope: Scope, policy: str, path: str | os.PathLike, *, workers: int =
     spec = canonical_spec(*parse_policy_spec(policy))
     episodes = scope.episodes()
     jobs = [(e.spec.to_dict(), s, spec) for e, s in episodes]
-    bar = Progress(len(jobs), desc=f"export {spec}", enabled=progress)
+    bar = progress_bar(len(jobs), desc=f"export {spec}", enabled=progress)
     labels = []
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:

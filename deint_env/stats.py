@@ -9,14 +9,16 @@ rliable takes scores as (runs x tasks) matrices.  Strata of equal size are stack
 strata of another size (a policy that could not play every episode) into further ones, and all are
 resampled by rliable's `StratifiedIndependentBootstrap` (each column on its own): one code path for
 even and uneven strata.  Point estimates are the statistic of all scores concatenated in stratum
-order, exactly as `deint_env.metrics.stratified_bootstrap` computes them.  rliable resamples with
-numpy's global generator (its `random_state` argument does not reach the resampling), so every
-estimate seeds it and puts the previous state back: reruns give identical numbers.
+order, exactly as `deint_env.metrics.stratified_bootstrap` computes them (with `trim_mean25` and
+`score_fractions`, rliable's arithmetic without its wrappers, so that points need no rliable).
+rliable resamples with numpy's global generator (its `random_state` argument does not reach the
+resampling), so every estimate seeds it and puts the previous state back: reruns give identical numbers.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import math
 from typing import Any, Iterator, Mapping, Sequence
 
@@ -37,6 +39,10 @@ def rliable() -> tuple[Any, Any]:
         raise DeintError(f"leaderboards need rliable ({e.name or 'it'} is missing): "
                          f"pip install 'deint-bench[leaderboard]'") from None
     return library, metrics
+
+
+def have_rliable() -> bool:
+    return importlib.util.find_spec("rliable") is not None
 
 
 def rliable_version() -> str:
@@ -89,15 +95,16 @@ Triple = tuple[float, float, float]
 
 
 def estimates(strata: Mapping[str, Any], groups: Mapping[str, Sequence[str]], taus: np.ndarray | None = None,
-              reps: int = 2000, seed: int = 0) -> tuple[dict[str, dict[str, Triple]], tuple[np.ndarray, ...] | None]:
+              reps: int = 2000, seed: int = 0,
+              intervals: bool = True) -> tuple[dict[str, dict[str, Triple]], tuple[np.ndarray, ...] | None]:
     """Interval estimates of one policy's scores, from one stratified bootstrap.
 
     `strata` maps a scenario to its scores; `groups` maps a group name (e.g. "all", a tag) to the
     scenarios it pools.  Returns ({group: {"iqm": (point, low, high), "mean": (...)}}, profile), the
     profile being (fraction of episodes scoring above each tau, low, high) -- rliable's score
-    distribution with its band -- when `taus` is given.  A group with no scores gets NaN.
+    distribution with its band -- when `taus` is given.  A group with no scores gets NaN; so do the
+    bounds with `intervals=False` (points only, no rliable needed).
     """
-    library, metrics = rliable()
     names = [k for k in strata if np.size(strata[k])]
     arrays = _clean([strata[k] for k in names])
     where = {k: i for i, k in enumerate(names)}
@@ -117,12 +124,15 @@ def estimates(strata: Mapping[str, Any], groups: Mapping[str, Sequence[str]], ta
             values = np.concatenate([values, profile(np.concatenate(per), taus)])
         return values
 
-    # Points: rliable's own functions on the scores in stratum order (as deint_env.metrics computes
-    # them); replicates: the same arithmetic without scipy's and np.vectorize's per-call overhead.
-    points = stat(arrays, metrics.aggregate_iqm, library.score_distributions)
-    blocks, cols = _blocks(arrays)
-    cis = _bootstrap(blocks, lambda *bs: stat(_unblock(bs, cols, len(arrays)), trim_mean25, score_fractions),
-                     reps, seed)
+    # Points: the scores in stratum order (as deint_env.metrics computes them); replicates: the same
+    # arithmetic on each resample.
+    points = stat(arrays, trim_mean25, score_fractions)
+    if intervals:
+        blocks, cols = _blocks(arrays)
+        cis = _bootstrap(blocks, lambda *bs: stat(_unblock(bs, cols, len(arrays)), trim_mean25, score_fractions),
+                         reps, seed)
+    else:
+        cis = np.full((2, points.size), np.nan)
     for k, g in enumerate(live):
         out[g] = {s: (float(points[2 * k + j]), float(cis[0, 2 * k + j]), float(cis[1, 2 * k + j]))
                   for j, s in enumerate(("iqm", "mean"))}

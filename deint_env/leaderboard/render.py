@@ -14,14 +14,12 @@ import html
 import io
 import json
 import math
-import os
 import re
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from deint_env.errors import DeintError
+from deint_env.formats.files import write_all
 from deint_env import metrics
 from deint_env.tables import display_name, entry_columns, fault_lines, interval, markdown_table, num
 
@@ -31,62 +29,17 @@ PLOTS_DOC = {
 }
 
 
-def _fill(f: Any, raw: bytes) -> None:
-    f.write(raw)
-
-
-def _replace(path: Path, data: str | bytes) -> None:
-    """Write `data` to a temporary file beside `path`, then rename it over `path` (OSError on failure)."""
-    raw = data.encode("utf-8") if isinstance(data, str) else data
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            _fill(f, raw)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except OSError:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise
-
-
-def write_file(path: Path, data: str | bytes) -> None:
-    """Replace `path` by `data` atomically, or raise one `DeintError` line naming it."""
-    try:
-        _replace(path, data)
-    except OSError as e:
-        raise DeintError(f"{path}: cannot write ({e.strerror or e})") from None
-
-
-STAGING = ".staging"
-
-
 def publish(folder: Path, files: dict[str, str | bytes], obsolete: list[str] = ()) -> None:
-    """Publish `files` into `folder` all together or not at all: every file is first written into
-    `folder/.staging` (where a full disk or any other failure stops it, the folder untouched), then
-    each is renamed into place -- renames within one file system need no space -- and the `obsolete`
-    files are removed.  Call with the folder's results lock held."""
-    stage = folder / STAGING
-    shutil.rmtree(stage, ignore_errors=True)  # left by a run killed while publishing
+    """Publish `files` into `folder` all together or not at all (`write_all`: every file is written
+    beside its target before any is renamed into place, so a full disk or any other failure leaves
+    the folder as it was), then remove the `obsolete` files.  Call with the folder's results lock held."""
     try:
-        stage.mkdir()
-        for name, data in files.items():
-            try:
-                _replace(stage / name, data)
-            except OSError as e:
-                raise DeintError(f"{folder / name}: cannot write, nothing was published "
-                                 f"({e.strerror or e})") from None
-        for name in files:
-            os.replace(stage / name, folder / name)
-        for name in obsolete:
-            with contextlib.suppress(FileNotFoundError):
-                (folder / name).unlink()
-    except OSError as e:
-        raise DeintError(f"{folder}: cannot publish the leaderboard ({e.strerror or e})") from None
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        write_all([(folder / name, data) for name, data in files.items()])
+    except DeintError as e:
+        raise DeintError(f"{e}; nothing was published") from None
+    for name in obsolete:
+        with contextlib.suppress(FileNotFoundError):
+            (folder / name).unlink()
 
 
 def tidy(x: Any) -> Any:

@@ -44,10 +44,10 @@ import numpy as np
 
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.formats import from_file_labels, read_bytes, to_file_labels
+from deint_env.formats.files import write_bytes, write_text
 from deint_env.formats.json_files import check_depth
 from deint_env.formats.npz import read_npz
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
-from deint_env.leaderboard.render import write_file
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
 from deint_env.runner import reference_accuracies
@@ -356,10 +356,10 @@ def export(scope: Scope, policy: str, path: str | os.PathLike, *, workers: int =
         arrays.update({k: np.asarray(v) for k, v in header.items()})
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
-        write_file(path, buf.getvalue())
+        write_bytes(path, buf.getvalue())
     else:
         lines = [json.dumps(header)] + [
             json.dumps({"scenario": e.name, "seed": s, "labels": lab}, separators=(",", ":"))
             for (e, s), lab in zip(episodes, labels)]
-        write_file(path, "\n".join(lines) + "\n")
+        write_text(path, "\n".join(lines) + "\n")
     return len(jobs)

@@ -59,7 +59,10 @@ def same_metrics(a, b) -> bool:
         return False
     for k in a:
         x, y = a[k], b[k]
-        if isinstance(x, float) and np.isnan(x):
+        if isinstance(x, np.ndarray):
+            if not (isinstance(y, np.ndarray) and np.array_equal(x, y, equal_nan=True)):
+                return False
+        elif isinstance(x, float) and np.isnan(x):
             if not (isinstance(y, float) and np.isnan(y)):
                 return False
         elif x != y:
@@ -237,7 +240,7 @@ def test_lag_semantics(lag):
         assert seen[k]["valid"] == 1 and seen[k]["toa"][0] == ep.toa[k]
     for k in range(n, n + lag + 1):  # the D padding steps and the terminal observation
         assert seen[k]["valid"] == 0
-    assert all("metrics" not in i for i in infos[:-1])
+    assert all(i["metrics"]["n_pulses"] == 0 for i in infos[:-1])  # placeholders until the end
     m = infos[-1]["metrics"]
     assert m["lag"] == lag and m["n_pulses"] == n
     assert m["accuracy"] == pytest.approx(sum(rew) / n)
@@ -300,7 +303,12 @@ def test_step_infos_leak_nothing():
     env = make(MAIN, scenario=short("robust-v0/robust-combined", 100))
     *_, infos, _ = play(env, seed=0)
     for info in infos[:-1]:
-        assert not {"source", "mask", "truth", "metrics"} & set(info)
+        assert not {"source", "mask", "truth"} & set(info)
+        # the metrics are placeholders until the last step
+        m = info["metrics"]
+        assert m["n_pulses"] == 0 and np.all(m["pe"] == -np.inf)
+        assert all(v == -np.inf for k, v in m.items() if isinstance(v, float))
+    assert infos[-1]["metrics"]["n_pulses"] == 100 and 0 <= infos[-1]["metrics"]["accuracy"] <= 1
 
 
 # ---- actions and rewards -----------------------------------------------------------------------------------

@@ -83,7 +83,7 @@ def _compare(spec: ScenarioSpec, lag: int, n_steps: int, seed: int = 100, min_bo
                 if te:
                     assert info["_episode_accuracy"][i]
                     assert info["episode_accuracy"][i] == score[i] / len(env.episode)
-                    assert _same_json(vec.metrics(i), inf["metrics"])
+                    assert _same_json(vec.metrics(i), env.metrics())
                     alt_hits += _alt_only_hits(env)
             _check_obs(obs, i, o)
             assert rew[i] == r and term[i] == te

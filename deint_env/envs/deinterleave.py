@@ -210,6 +210,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         # Every step's info has the reset info's structure; priors and metrics are placeholders where
         # they carry nothing (see the class doc).
         self._step_info = reset_info | {"priors": _placeholder(reset_info["priors"])}
+        self._step_arrays = [k for k, v in self._step_info["priors"].items() if type(v) is np.ndarray]
         reset_info["metrics"] = _placeholder(self._pending)
         return self._observation(0), reset_info
 
@@ -227,14 +228,18 @@ class DeinterleaveEnv(gym.Env[dict, int]):
             reward = 1.0 if self._is_correct(j, a) else 0.0
         self._step += 1
         terminated = j == self._n - 1
-        # Fresh containers every step (Gymnasium's checker forbids infos that share mutable objects).
+        # Fresh containers every step (Gymnasium's checker forbids infos that share mutable objects);
+        # copying the templates is the cheapest way to make them.
         info = self._step_info.copy()
-        info["priors"] = _placeholder(info["priors"])
+        priors = info["priors"] = info["priors"].copy()
+        for k in self._step_arrays:
+            priors[k] = priors[k].copy()
         if terminated:
             self._final = self.metrics()
             info["metrics"] = _info_metrics(self._final)
         else:
-            info["metrics"] = _placeholder(self._pending)
+            info["metrics"] = pending = self._pending.copy()
+            pending["pe"] = pending["pe"].copy()
         return self._observation(self._step), reward, terminated, False, info
 
     def _is_correct(self, j: int, a: int) -> bool:

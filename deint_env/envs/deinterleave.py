@@ -40,7 +40,7 @@ def check_lag(lag: object) -> int:
     return int(lag)
 
 
-class SplitSeeds(NamedTuple):
+class SplitRange(NamedTuple):
     """The seeds an env restricted to one split of a suite scenario may play."""
 
     split: str
@@ -60,7 +60,7 @@ class SplitSeeds(NamedTuple):
 
 
 def split_seeds(scenario: ScenarioSpec | str | dict | None, spec: ScenarioSpec | None,
-                split: object) -> SplitSeeds | None:
+                split: object) -> SplitRange | None:
     """The split's seed ranges of a suite scenario (named, or a spec equal to a suite's), or None."""
     if split is None:
         return None
@@ -77,7 +77,7 @@ def split_seeds(scenario: ScenarioSpec | str | dict | None, spec: ScenarioSpec |
         suite, entry = found[0]
     suite = suite or next(s for s in list_suites() if any(e is entry for e in load_suite(s)))
     seeds, other = (entry.train, entry.test) if split == "train" else (entry.test, entry.train)
-    return SplitSeeds(split, f"{suite}/{entry.name}", seeds, other)
+    return SplitRange(split, f"{suite}/{entry.name}", seeds, other)
 
 
 class DeinterleaveEnv(gym.Env[dict, int]):
@@ -113,16 +113,17 @@ class DeinterleaveEnv(gym.Env[dict, int]):
     ## Info
     The same keys, with values of the same type and shape, at reset and at every step, so that
     recorders (Minari's `DataCollector(record_infos=True)`) can stack them:
-    - `priors`: the public priors (`Priors.as_info()`: periods, phases, their spreads, source
-      probabilities, jitter, ...; never the truth), fresh arrays every time;
+    - `priors`: at reset, the public priors (`Priors.as_info()`: periods, phases, their spreads,
+      source probabilities, jitter, ...; never the truth); on the steps a placeholder of the same
+      keys, types and shapes with every float -inf (`n_labels` and `blind` kept);
     - `n_pulses` (int), `lag` (int), `has_amplitude` (bool), `scenario` (str);
-    - `metrics`: a dict of the episode's label metrics (`deint_env.metrics.label_metrics`, with the
-      clustering scores unless `clustering_metrics=False`, and `lag`), filled in on the last step
-      only.  Before it every float metric is -inf, `n_pulses` is 0 and `pe` (per-source error
-      probability P_e^i, a float64 array with one entry per source present in the episode) is all
-      -inf: -inf, not NaN, because Gymnasium's env checker compares infos with `==`.  In the info
-      `pe` is that array (NaN for a source without pulses); `metrics()` gives the JSON form (a list,
-      None for a source without pulses).
+    - `metrics`: the episode's label metrics (`deint_env.metrics.label_metrics`, with the clustering
+      scores unless `clustering_metrics=False`, and `lag`) on the last step; before it a placeholder:
+      every float -inf, `n_pulses` 0, `pe` all -inf.  In the info `pe` (per-source error probability
+      P_e^i) is a float64 array with one entry per source present in the episode (NaN for a source
+      without pulses); `metrics()` gives the JSON form (a list, None for a source without pulses).
+    Placeholders are -inf rather than NaN because Gymnasium's env checker compares step infos with
+    `==`; every info holds fresh containers, as that checker also asks.
 
     ## Episode End
     Terminates (`terminated=True`) on the step that labels the last pulse, i.e. after n_pulses + D

@@ -33,14 +33,14 @@ labellings = st.integers(0, 120).flatmap(lambda n: st.tuples(
     st.lists(st.integers(-1, 6), min_size=n, max_size=n), st.lists(st.integers(-1, 9), min_size=n, max_size=n)))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=120, deadline=None)
 @given(labellings)
 def test_random_labellings_equal_sklearn(pair):
     true, pred = pair
     assert_same(true, pred)
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(labellings, st.integers(0, 2**32 - 1))
 def test_noisy_copies_and_relabellings_equal_sklearn(pair, seed):
     true, _ = pair

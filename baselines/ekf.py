@@ -40,6 +40,12 @@ enters at the next sample.  The time origin t0 is 0 (the scenarios' origin, wher
 pulse lies within a period) unless the first TOA is further than the longest prior period from it;
 then counting starts at the first pulse.
 It never labels a pulse spurious: the count model has no spurious or missing pulses.
+
+Limits.  An episode the sampled signal cannot represent in bounded time is refused as not applicable
+(`NotApplicable`, at the pulse that shows it): a pulse more than MAX_SAMPLES_PER_PULSE samples per
+pulse seen (plus MAX_SAMPLES_EXTRA) from the origin -- one outlying TOA, or a prior period so short
+that the sampling step is tiny against the TOAs' span -- and a TOA whose float64 resolution is coarser
+than the sampling step (TOAs near 1e300).
 """
 
 from __future__ import annotations
@@ -50,10 +56,17 @@ from typing import Any
 import numpy as np
 
 from deint_env.episode import Priors
+from deint_env.errors import NotApplicable
 from deint_env.policies import policy_rng
 
 TWO_PI = 2.0 * math.pi
 R_LOW, R_HIGH, R_SWITCH = 10.0, 20.0, 0.4  # CM00 IV-B: R = 10, or 20 from sigma_w / T_min = 51 %
+# The run time is linear in the samples processed, so they are bounded by the pulses seen: at pulse j,
+# at most MAX_SAMPLES_PER_PULSE (j + 1) + MAX_SAMPLES_EXTRA samples since the origin.  Every test
+# episode of the published anchored suites stays over 9,700 samples inside (the most per pulse: up to
+# 465 at the first pulses and ~130 later in MK94's single source with jitter 100 x its period; <= 10
+# on CM00's scenarios).
+MAX_SAMPLES_PER_PULSE, MAX_SAMPLES_EXTRA = 400, 10_000
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -157,7 +170,7 @@ class SampledBank:
         t = float(obs["toa"][0])
         if self._t0 is None:
             self._start(t)
-        k_stop = math.ceil((t - self._t0) / self.Ts)  # samples strictly before t: count j (pulses 0..j-1)
+        k_stop = self._samples_before(t)  # samples strictly before t: count j (pulses 0..j-1)
         if k_stop > self._k:
             self._advance(k_stop, float(self._j))
         self._j += 1
@@ -167,6 +180,21 @@ class SampledBank:
         if self.label_scale == "time":
             d = d / np.abs(self.f[b])
         return int(np.argmin(d))
+
+    def _samples_before(self, t: float) -> int:
+        """ceil((t - t0) / Ts), refusing (NotApplicable) a pulse that would take unbounded time."""
+        if not math.ulp(t) <= self.Ts:
+            raise NotApplicable(f"{self.name}: pulse {self._j} has TOA {t:.6g}, stored in float64 steps of "
+                                f"{math.ulp(t):.3g}, coarser than the sampling step Ts = {self.Ts:.3g}: the count "
+                                "signal cannot be sampled")
+        k = (t - self._t0) / self.Ts
+        limit = MAX_SAMPLES_PER_PULSE * (self._j + 1) + MAX_SAMPLES_EXTRA
+        if not k <= limit:
+            raise NotApplicable(f"{self.name}: pulse {self._j} (TOA {t:.6g}) lies {k:.3g} sampling steps "
+                                f"(Ts = {self.Ts:.3g}) after the origin {self._t0:.6g}; at most {limit} are allowed "
+                                f"by pulse {self._j} ({MAX_SAMPLES_PER_PULSE} per pulse + {MAX_SAMPLES_EXTRA}), "
+                                "as the time grows with the span over the sampling step")
+        return math.ceil(k)
 
     @property
     def best(self) -> int:

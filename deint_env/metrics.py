@@ -3,7 +3,7 @@
 Per episode: label accuracy (the env's reward rule), per-source error probability P_e^i (MK94 eq. 5.1)
 and its mean, permutation-matched accuracy (Hungarian over the confusion matrix), link accuracy,
 spurious precision/recall, the Turing Deinterleaving Challenge's clustering metrics (V-measure, ARI,
-AMI, homogeneity, completeness from scikit-learn; cluster-wise MCC and F1), and the estimation errors
+AMI, homogeneity, completeness as scikit-learn defines them; cluster-wise MCC and F1), and the estimation errors
 of a policy's `estimates()` against the truth and the Cramer-Rao bound.
 
 Across episodes: `METRICS`, the one metric table (key, label, format, how it aggregates, which way
@@ -22,6 +22,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from deint_env import clustering
 from deint_env.labels import correct_anchored, correct_link, true_predecessors
 
 
@@ -99,15 +100,9 @@ def clustering_metrics(source: np.ndarray, labels: np.ndarray) -> dict[str, floa
     TDC scores noise when no `default_label` is set.  Cluster-wise MCC and F1 are the TDC's: each
     true class's best cluster, then the worst class (`clusterwise_mcc_f1`).
     """
-    from sklearn import metrics as skm  # scikit-learn is slow to import; only scoring needs it
-
-    out = {
-        "v_measure": float(skm.v_measure_score(source, labels)),
-        "homogeneity": float(skm.homogeneity_score(source, labels)),
-        "completeness": float(skm.completeness_score(source, labels)),
-        "ari": float(skm.adjusted_rand_score(source, labels)),
-        "ami": float(skm.adjusted_mutual_info_score(source, labels)),
-    }
+    s = clustering.scores(source, labels)  # scikit-learn's definitions, from the contingency table
+    out = {"v_measure": s.v_measure, "homogeneity": s.homogeneity, "completeness": s.completeness,
+           "ari": s.ari, "ami": s.ami}
     out.update(clusterwise_mcc_f1(source, labels))
     return out
 

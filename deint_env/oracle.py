@@ -28,10 +28,14 @@ import numpy as np
 from scipy.special import ndtr
 
 from deint_env.episode import Episode, Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
 
 _WINDOW_SIGMAS = 7.0
 _FLOOR = 1e-12  # probabilities of 0 would make an alignment impossible rather than just unlikely
+# Priors-file genie (`priors_genie_labels`): the schedule it builds and the emissions each pulse is
+# compared with are bounded, so that memory and time stay linear in the pulses.
+MAX_EMISSIONS_PER_PULSE, MAX_EMISSIONS_EXTRA = 1000, 1_000_000
+MAX_CANDIDATES_PER_PULSE = 1000
 
 
 def genie_labels(toa: np.ndarray, schedule_toa: np.ndarray, schedule_source: np.ndarray, jitter_std: float,
@@ -140,10 +144,17 @@ def episode_genie_labels(episode: Episode) -> np.ndarray:
 
 
 def priors_genie_labels(toa: np.ndarray, priors: Priors) -> np.ndarray:
-    """Genie labels from true constant-PRI parameters given as priors (the `deint label` case)."""
+    """Genie labels from true constant-PRI parameters given as priors (the `deint label` case).
+
+    Refuses (NotApplicable) the episodes whose schedule would not fit in memory or time linear in the
+    pulses: TOAs stored more coarsely than a hundredth of the shortest period (near 1e300), a span
+    holding more than MAX_EMISSIONS_PER_PULSE emissions per pulse (+ MAX_EMISSIONS_EXTRA: one
+    outlying TOA, or a tiny period), or more than MAX_CANDIDATES_PER_PULSE emissions within a pulse's
+    matching window (periods far below the TOA noise)."""
     if priors.blind or not np.all(np.isfinite(priors.phase)):
         raise DeintError("genie needs the true period and phase of every source in the priors file "
                          "('period' and 'phase')")
+    _check_schedule_size(toa, priors)
     resolution = priors.coincidence_resolution
     t_end = float(toa[-1]) + 8 * priors.jitter_std + resolution + 1.0
     sched, srcs = [], []
@@ -156,3 +167,27 @@ def priors_genie_labels(toa: np.ndarray, priors: Priors) -> np.ndarray:
     src = genie_labels(toa, np.concatenate(sched), np.concatenate(srcs), priors.jitter_std, priors.missing_prob,
                        priors.spurious_rate * rate, resolution)
     return np.where(src < 0, priors.n_labels, src)
+
+
+def _check_schedule_size(toa: np.ndarray, priors: Priors) -> None:
+    n = toa.size
+    if n == 0:
+        return
+    period, sigma = priors.period, priors.jitter_std
+    t_min = float(np.min(period))
+    step = max(math.ulp(float(toa[0])), math.ulp(float(toa[-1])))
+    if not step <= t_min / 100:
+        raise NotApplicable(f"genie: TOAs up to {max(abs(toa[0]), abs(toa[-1])):.3g} are stored in float64 steps of "
+                            f"{step:.3g}, too coarse for the shortest period {t_min:.3g}")
+    span = float(toa[-1]) - float(toa[0]) + 16 * sigma + 2 * priors.coincidence_resolution + 2.0
+    emissions = float(np.sum(span / period))
+    limit = MAX_EMISSIONS_PER_PULSE * n + MAX_EMISSIONS_EXTRA
+    if not emissions <= limit:
+        raise NotApplicable(f"genie: the {n} pulses span {span:.3g} time units, {emissions:.3g} emissions of the "
+                            f"true schedule (periods down to {t_min:.3g}); at most {limit} "
+                            f"({MAX_EMISSIONS_PER_PULSE} per pulse + {MAX_EMISSIONS_EXTRA}) fit in bounded memory")
+    candidates = float(np.sum(2 * _WINDOW_SIGMAS * sigma / period))
+    if not candidates <= MAX_CANDIDATES_PER_PULSE:
+        raise NotApplicable(f"genie: {candidates:.3g} emissions lie within {_WINDOW_SIGMAS:g} sigma = "
+                            f"{_WINDOW_SIGMAS * sigma:.3g} of each pulse (periods down to {t_min:.3g}); at most "
+                            f"{MAX_CANDIDATES_PER_PULSE} keep the alignment's time bounded")

@@ -100,7 +100,7 @@ def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool
     if hasattr(policy, "estimates"):
         est = policy.estimates()
         estimates = {k: np.asarray(v, dtype=np.float64) for k, v in est.items()} if est is not None else None
-    return PlayResult(env.labels.copy(), info["metrics"], estimates, spent)
+    return PlayResult(env.labels.copy(), env.metrics(), estimates, spent)
 
 
 def accuracy_of(labels: np.ndarray, episode: Episode) -> float:

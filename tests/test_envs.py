@@ -3,6 +3,7 @@ semantics, the reset info, and the reward rules (anchored and blind)."""
 
 from __future__ import annotations
 
+import math
 import pickle
 import warnings
 
@@ -59,7 +60,10 @@ def same_metrics(a, b) -> bool:
         return False
     for k in a:
         x, y = a[k], b[k]
-        if isinstance(x, float) and np.isnan(x):
+        if isinstance(x, np.ndarray):
+            if not (isinstance(y, np.ndarray) and np.array_equal(x, y, equal_nan=True)):
+                return False
+        elif isinstance(x, float) and np.isnan(x):
             if not (isinstance(y, float) and np.isnan(y)):
                 return False
         elif x != y:
@@ -237,7 +241,7 @@ def test_lag_semantics(lag):
         assert seen[k]["valid"] == 1 and seen[k]["toa"][0] == ep.toa[k]
     for k in range(n, n + lag + 1):  # the D padding steps and the terminal observation
         assert seen[k]["valid"] == 0
-    assert all("metrics" not in i for i in infos[:-1])
+    assert all(i["metrics"]["n_pulses"] == 0 for i in infos[:-1])  # placeholders until the end
     m = infos[-1]["metrics"]
     assert m["lag"] == lag and m["n_pulses"] == n
     assert m["accuracy"] == pytest.approx(sum(rew) / n)
@@ -300,7 +304,12 @@ def test_step_infos_leak_nothing():
     env = make(MAIN, scenario=short("robust-v0/robust-combined", 100))
     *_, infos, _ = play(env, seed=0)
     for info in infos[:-1]:
-        assert not {"source", "mask", "truth", "metrics"} & set(info)
+        assert not {"source", "mask", "truth"} & set(info)
+        # the metrics are placeholders until the last step
+        m = info["metrics"]
+        assert m["n_pulses"] == 0 and np.all(m["pe"] == -np.inf)
+        assert all(v == -np.inf for k, v in m.items() if isinstance(v, float))
+    assert infos[-1]["metrics"]["n_pulses"] == 100 and 0 <= infos[-1]["metrics"]["accuracy"] <= 1
 
 
 # ---- actions and rewards -----------------------------------------------------------------------------------
@@ -387,3 +396,95 @@ def test_step_before_reset():
     env = make().unwrapped
     with pytest.raises(gym.error.ResetNeeded):
         env.step(0)
+
+
+# ---- the same info structure at every step (Minari records infos) -------------------------------------------
+def _structure(info):
+    """Keys, and for each leaf its type (and dtype and shape for arrays)."""
+    if isinstance(info, dict):
+        return {k: _structure(v) for k, v in info.items()}
+    if isinstance(info, np.ndarray):
+        return ("array", info.dtype.str, info.shape)
+    return type(info).__name__
+
+
+@pytest.mark.parametrize("scenario,lag", [("paper-v0/mk94-two-var1", 0), ("blind-v0/blind-n2to5-jitter0.1", 2),
+                                          ("paper-v0/cm00-five-jitter0", 1), ("robust-v0/robust-combined", 0)])
+def test_every_info_has_the_reset_structure(scenario, lag):
+    env = make(MAIN, scenario=short(scenario, 120), lag=lag)
+    _, info0, _, _, infos, _ = play(env, seed=3)
+    want = _structure(info0)
+    assert all(_structure(i) == want for i in infos)
+    ep = env.unwrapped.episode
+    m = infos[-1]["metrics"]
+    assert m["n_pulses"] == len(ep) and m["lag"] == lag and 0 <= m["accuracy"] <= 1
+    json_form = env.unwrapped.metrics()  # the JSON form: pe a list, None for a source without pulses
+    assert [math.nan if v is None else v for v in json_form["pe"]] == pytest.approx(m["pe"].tolist(), nan_ok=True)
+    assert {k: v for k, v in json_form.items() if k != "pe"} == pytest.approx(
+        {k: v for k, v in m.items() if k != "pe"}, nan_ok=True)
+    # priors in full at reset only; placeholders after it
+    np.testing.assert_array_equal(info0["priors"]["period"], ep.priors.period)
+    assert np.all(infos[0]["priors"]["period"] == -np.inf) and infos[0]["priors"]["n_labels"] == ep.n_labels
+
+
+def test_minari_records_infos(tmp_path, monkeypatch):
+    from minari import DataCollector
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    env = DataCollector(make(MAIN, scenario=short("paper-v0/cm00-five-jitter23", 60), lag=1), record_infos=True)
+    rng = np.random.default_rng(0)
+    for seed in (1, 2, 3):
+        env.reset(seed=seed)
+        while not env.step(int(rng.integers(env.action_space.n)))[2]:
+            pass
+    dataset = env.create_dataset("deint/test-v0", eval_env=env.spec, algorithm_name="random",
+                                 author="deint-bench tests", author_email="tests@example.invalid",
+                                 code_permalink="none", description="three random-label episodes")
+    assert dataset.total_episodes == 3
+    for episode in dataset.iterate_episodes():
+        infos = episode.infos
+        steps = len(episode.rewards)
+        assert steps == 61
+        assert infos["priors"]["period"].shape == (steps + 1, 5)
+        assert np.all(np.isfinite(infos["priors"]["period"][0])) and np.all(infos["priors"]["period"][1:] == -np.inf)
+        acc = infos["metrics"]["accuracy"]
+        assert acc.shape == (steps + 1,) and np.all(acc[:-1] == -np.inf) and 0 <= acc[-1] <= 1
+        assert infos["metrics"]["pe"].shape == (steps + 1, 5)
+    env.close()
+
+
+# ---- split= ------------------------------------------------------------------------------------------------
+def test_split_refuses_the_other_splits_seeds():
+    name = "core-v0/core-n2-spread1.5-jitter0.05"
+    train = make(MAIN, scenario=name, split="train")
+    train.reset(seed=99_999)
+    with pytest.raises(DeintError, match=r"^seed=1000000 is a test seed of core-v0/core-n2-spread1.5-jitter0.05: "
+                                         r"this env \(split='train'\) plays train seeds \[0, 100000\) only$"):
+        train.reset(seed=1_000_000)
+    with pytest.raises(DeintError, match="not a seed of either split"):
+        train.reset(seed=500_000)
+    test = make(MAIN, scenario=name, split="test")
+    test.reset(seed=1_000_009)
+    with pytest.raises(DeintError, match=r"seed=5 is a train seed .* plays test seeds \[1000000, 1000010\) only"):
+        test.reset(seed=5)
+    # unseeded resets draw from the split
+    for env, lo, hi in ((train, 0, 100_000), (test, 1_000_000, 1_000_010)):
+        env.reset(seed=None)
+        for _ in range(5):
+            env.reset()
+            assert lo <= env.unwrapped.episode.seed < hi
+    # split=None plays any seed, as before
+    make(MAIN, scenario=name).reset(seed=1_000_000)
+
+
+def test_split_needs_a_suite_scenario():
+    spec = short("core-v0/core-n2-spread1.5-jitter0.05", 100)  # changed: in no suite
+    with pytest.raises(DeintError, match="needs a suite scenario"):
+        make(MAIN, scenario=spec, split="train")
+    with pytest.raises(DeintError, match=r"split='validation' is invalid: None, 'train' or 'test'"):
+        make(MAIN, split="validation")
+    # a spec equal to a suite's, and a bare scenario name, find their seed ranges
+    same = resolve_scenario("core-v0/core-n2-spread1.5-jitter0.05")
+    assert make(MAIN, scenario=same.to_dict(), split="test").unwrapped.split.scenario == \
+        "core-v0/core-n2-spread1.5-jitter0.05"
+    assert make(MAIN, scenario="mk94-three", split="train").unwrapped.split.scenario == "paper-v0/mk94-three"

@@ -1,20 +1,26 @@
 """index.html in headless Chromium: a click on a column header sorts the table, the tabs switch.
 
-Needs Debian's `chromium` and `chromium-driver` (`.ci/run` installs them) and selenium (the [dev]
-extra).  Browsers downloaded by test tools do not run here, so both binaries are named explicitly;
-when they are missing the test fails and says how to install them.
+Needs Debian's `chromium` and `chromium-driver` (`.ci/run` installs them, then runs this file with
+`python -m pytest -m browser`) and selenium (the [dev] extra).  Browsers downloaded by test tools do
+not run here, so both binaries are named explicitly; when they are missing the test fails and says
+how to install them.
 """
 
 from __future__ import annotations
 
 import os
 
+import pytest
 from selenium import webdriver
 from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 
 from deint_env.leaderboard import Scope, build
+
+# Not in the default run (pyproject's addopts): `python -m pytest -m browser`, which .ci/run does after
+# installing the browser, so that there a missing browser fails the run.
+pytestmark = pytest.mark.browser
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"

@@ -83,7 +83,7 @@ def _compare(spec: ScenarioSpec, lag: int, n_steps: int, seed: int = 100, min_bo
                 if te:
                     assert info["_episode_accuracy"][i]
                     assert info["episode_accuracy"][i] == score[i] / len(env.episode)
-                    assert _same_json(vec.metrics(i), inf["metrics"])
+                    assert _same_json(vec.metrics(i), env.metrics())
                     alt_hits += _alt_only_hits(env)
             _check_obs(obs, i, o)
             assert rew[i] == r and term[i] == te
@@ -292,3 +292,31 @@ def test_render(mode):
         assert all(f.shape == (320, 640, 3) and f.dtype == np.uint8 for f in frames)
     else:
         assert all(f.startswith("  pulse") and "10 pulses labelled" in f for f in frames)
+
+
+def test_split_refuses_the_other_splits_seeds():
+    name = "core-v0/core-n2-spread1.5-jitter0.05"
+    vec = DeinterleaveVectorEnv(3, scenario=name, split="test")
+    vec.reset(seed=1_000_007)  # sub-envs play 1000007, 1000008, 1000009
+    assert [ep.seed for ep in vec.episodes] == [1_000_007, 1_000_008, 1_000_009]
+    with pytest.raises(DeintError, match=r"^seed=1000010 is not a seed of either split of core-v0/core-n2-spread1.5"
+                                         r"-jitter0.05: this env \(split='test'\) plays test seeds"):
+        vec.reset(seed=1_000_008)  # the third sub-env would play 1000010
+    with pytest.raises(DeintError, match="seed=7 is a train seed"):
+        vec.reset(seed=[1_000_000, 7, None])
+    train = DeinterleaveVectorEnv(2, scenario=name, split="train")
+    with pytest.raises(DeintError, match="seed=1000000 is a test seed"):
+        train.reset(seed=[3, 1_000_000])
+    train.reset(seed=[3, None])
+    assert train.episodes[0].seed == 3 and 0 <= train.episodes[1].seed < 100_000
+    # autoresets draw their episodes from the split, as the single env's unseeded resets do
+    single = gym.make("deint_env/Deinterleave-v0", scenario=name, split="train").unwrapped
+    single.reset(seed=4)
+    train.reset(seed=[4, 5])
+    n = len(train.episodes[0])
+    for _ in range(n + 1):
+        train.step(np.zeros(2, np.int64))
+    single.reset()
+    assert train.episodes[0].seed == single.episode.seed and 0 <= train.episodes[0].seed < 100_000
+    with pytest.raises(DeintError, match="split="):
+        gym.make_vec("deint_env/Deinterleave-v0", num_envs=2, scenario=name, split="dev")

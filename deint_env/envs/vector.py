@@ -12,7 +12,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from deint_env.envs.deinterleave import DEFAULT_SCENARIO, check_lag, observation_space
+from deint_env.envs.deinterleave import DEFAULT_SCENARIO, check_lag, observation_space, split_seeds
 from deint_env.episode import Episode
 from deint_env.errors import DeintError
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
@@ -60,8 +60,9 @@ class DeinterleaveVectorEnv(VectorEnv):
     until the next `step()`, `metrics(i)` gives the finished episode's full `label_metrics`.
 
     ## Arguments
-    `num_envs`: number of sub-envs.  `scenario`, `lag`, `clustering_metrics`: as the single env
-    (`clustering_metrics` only affects `metrics(i)`).  `render_mode`: None, "ansi" or "rgb_array"
+    `num_envs`: number of sub-envs.  `scenario`, `lag`, `clustering_metrics`, `split`: as the single
+    env (`clustering_metrics` only affects `metrics(i)`; with `split`, every sub-env's seed s + i must
+    be a seed of that split, and unseeded episodes are drawn from it).  `render_mode`: None, "ansi" or "rgb_array"
     (`render()` returns a tuple with one frame per sub-env).
 
     ## Version History
@@ -72,13 +73,14 @@ class DeinterleaveVectorEnv(VectorEnv):
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, scenario: ScenarioSpec | str | dict = DEFAULT_SCENARIO, lag: int = 0,
-                 render_mode: str | None = None, clustering_metrics: bool = True):
+                 render_mode: str | None = None, clustering_metrics: bool = True, split: str | None = None):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise DeintError(f"num_envs={num_envs!r} is invalid: an integer >= 1")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise DeintError(f"render_mode={render_mode!r} is invalid: None, 'ansi' or 'rgb_array'")
         self.num_envs = int(num_envs)
         self.spec_scenario = resolve_scenario(scenario)
+        self.split = split_seeds(scenario, self.spec_scenario, split)
         self.lag = check_lag(lag)
         self.render_mode = render_mode
         self.clustering_metrics = clustering_metrics
@@ -145,7 +147,12 @@ class DeinterleaveVectorEnv(VectorEnv):
                 self._rngs[i], _ = seeding.np_random(seed)
             elif self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random()
-            episode_seeds.append(seed if seed is not None else int(self._rngs[i].integers(0, 2**63 - 1)))
+            if seed is not None:
+                episode_seeds.append(seed)
+            elif self.split is not None:
+                episode_seeds.append(self.split.draw(self._rngs[i]))
+            else:
+                episode_seeds.append(int(self._rngs[i].integers(0, 2**63 - 1)))
         episodes = simulate_many(self.spec_scenario, episode_seeds)
         self._load(rows, episodes)
         m = len(rows)
@@ -232,6 +239,8 @@ class DeinterleaveVectorEnv(VectorEnv):
             if s is not None and (isinstance(s, bool) or not isinstance(s, (int, np.integer))
                                   or not 0 <= int(s) < 2**63):
                 raise DeintError(f"seed={s!r} is invalid: an integer in [0, 2^63)")
+            if s is not None and self.split is not None:
+                self.split.check(int(s))
         return [None if s is None else int(s) for s in seeds]
 
     def step(self, actions):

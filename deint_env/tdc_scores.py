@@ -1,8 +1,9 @@
 """The Turing Deinterleaving Challenge's scores (see `deint_env.formats.tdc` for its files).
 
 `tdc_scores` reproduces the challenge's `evaluate_labels` (`models/evaluate.py`): homogeneity,
-completeness, V-measure, ARI and AMI from scikit-learn, the cluster-wise MCC and F1 (for each true
-emitter the best score over predicted clusters, then the worst emitter), and the discount: with a
+completeness, V-measure, ARI and AMI (scikit-learn's definitions, computed by `deint_env.clustering`),
+the cluster-wise MCC and F1 (for each true emitter the best score over predicted clusters, then the
+worst emitter), and the discount: with a
 ``default_label``, pulses whose *true* label is it are dropped and every score is multiplied by the
 fraction kept.
 """
@@ -14,17 +15,16 @@ from typing import Any
 
 import numpy as np
 
+from deint_env import clustering
 from deint_env.errors import DeintError
 from deint_env.scenario import MAX_SOURCES
 
 
 def tdc_scores(labels_true: np.ndarray, labels_pred: np.ndarray, default_label: int | None = None) -> dict[str, float]:
     """The challenge's `evaluate_labels` for one train: homogeneity, completeness, v_measure, ari,
-    ami (scikit-learn), cluster-wise mcc and f1, and the discount.  With `default_label` (the model's
+    ami, cluster-wise mcc and f1, and the discount.  With `default_label` (the model's
     "no emitter" id) pulses whose true label is it are left out and every score is multiplied by the
     share of pulses kept (the discount)."""
-    from sklearn import metrics as skm
-
     from deint_env.metrics import clusterwise_mcc_f1
 
     true = np.asarray(labels_true).ravel()
@@ -39,9 +39,7 @@ def tdc_scores(labels_true: np.ndarray, labels_pred: np.ndarray, default_label: 
     if true.size == 0:
         return dict.fromkeys(("homogeneity", "completeness", "v_measure", "ari", "ami", "mcc", "f1"), math.nan) | {
             "discount": discount}
-    out = {"homogeneity": skm.homogeneity_score(true, pred), "completeness": skm.completeness_score(true, pred),
-           "v_measure": skm.v_measure_score(true, pred), "ari": skm.adjusted_rand_score(true, pred),
-           "ami": skm.adjusted_mutual_info_score(true, pred)}
+    out = clustering.scores(true, pred)._asdict()
     cw = clusterwise_mcc_f1(true, pred)
     out.update(mcc=cw["cluster_mcc"], f1=cw["cluster_f1"])
     return {k: discount * float(v) for k, v in out.items()} | {"discount": discount}

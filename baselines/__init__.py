@@ -16,10 +16,11 @@ POLICIES = (
                description="known-parameter MAP labelling from the true schedule (ceiling, oracle)"),
     PolicyInfo("tree", "baselines.tree:TreeSearch", modes=ANCHORED, limits=Limits(max_pulses=20),
                description="MK94 II-G: the optimal full tree search (2.19), short trains only"),
-    PolicyInfo("fdp", "baselines.fdp:FDP", modes=ANCHORED,
+    # fdp/fdp-ll version 2: the published (3.2) accumulation is the default (version 1 was "sequence").
+    PolicyInfo("fdp", "baselines.fdp:FDP", modes=ANCHORED, version=2,
                description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
                            "supernumerary, dropout options of VI)"),
-    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED,
+    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=2,
                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
     PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
                description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities"),

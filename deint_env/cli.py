@@ -606,7 +606,8 @@ def _add_leaderboard(sub) -> None:
     which = p.add_mutually_exclusive_group()
     which.add_argument("--suite", help="a suite name (see `deint suites`)")
     which.add_argument("--all", action="store_true",
-                       help="regenerate the published leaderboards (paper-v0, core-v0, robust-v0, agile-v0)")
+                       help="regenerate every published leaderboard (each suite with a folder under --root holding "
+                            "leaderboard.json)")
     p.add_argument("--policy", action="append", default=[], metavar="SPEC",
                    help="a policy, NAME or NAME:key=value,... (repeatable; default: every reference policy)")
     p.add_argument("--policies", metavar="A,B,...", help="policies by plain name, comma-separated")
@@ -681,7 +682,7 @@ def _check_reps(reps: int) -> None:
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import LEADERBOARD_SUITES, Scope, build, default_policies
+    from deint_env.leaderboard import Scope, build, default_policies, published_suites
 
     if not args.all and args.suite is None:
         raise DeintError("name a suite: --suite SUITE, or --all for the published leaderboards")
@@ -691,7 +692,7 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
         raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
     _check_reps(args.reps)
     policies = _run_policies(args) if args.policy or args.policies else default_policies()
-    scopes = [Scope(s) for s in LEADERBOARD_SUITES] if args.all else [_scope(args.suite, args)]
+    scopes = [Scope(s) for s in published_suites(args.root)] if args.all else [_scope(args.suite, args)]
     for scope in scopes:
         folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
                               reps=args.reps, executor=args.executor, address=args.address)

@@ -273,3 +273,15 @@ def test_submission_needs_a_valid_name(board_root, tmp_path, good_submission, ca
     assert "--name" in capsys.readouterr().err
     assert main(["leaderboard", "submit", str(path), "--suite", SUITE, "--name", "<b>", "--root",
                  str(board_root)]) == 2
+
+
+def test_published_suites_are_the_folders_holding_a_leaderboard(tmp_path):
+    from deint_env.leaderboard import published_suites
+
+    (tmp_path / "core-v0").mkdir()
+    (tmp_path / "core-v0" / "leaderboard.json").write_text("{}")
+    (tmp_path / "robust-v0").mkdir()  # a folder without a built leaderboard is not published
+    (tmp_path / "no-such-suite").mkdir()
+    (tmp_path / "no-such-suite" / "leaderboard.json").write_text("{}")
+    assert published_suites(tmp_path) == ["core-v0"]
+    assert set(published_suites("leaderboards")) >= {"paper-v0", "core-v0", "robust-v0", "agile-v0"}

@@ -19,8 +19,8 @@ estimates), `render` (JSON, CSV, README, HTML, and publishing every file togethe
 `submit` (submissions and `export`).  Columns come from the metric table `deint_env.metrics.METRICS`.
 """
 
-from deint_env.leaderboard.build import LEADERBOARD_SUITES, Scope, build, default_policies, write
+from deint_env.leaderboard.build import Scope, build, default_policies, published_suites, write
 from deint_env.leaderboard.submit import export, score_submission, submit
 
-__all__ = ["LEADERBOARD_SUITES", "Scope", "build", "default_policies", "export", "score_submission", "submit",
+__all__ = ["Scope", "build", "default_policies", "published_suites", "export", "score_submission", "submit",
            "write"]

@@ -24,12 +24,19 @@ from deint_env import policies
 from deint_env.policies import parse_policy_spec, policy_info
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
 from deint_env.runner import evaluate
-from deint_env.suites import TAGS, SuiteEntry, load_suite
+from deint_env.suites import TAGS, SuiteEntry, list_suites, load_suite
 
-LEADERBOARD_SUITES = ("paper-v0", "core-v0", "robust-v0", "agile-v0")
 DEFAULT_ROOT = Path("leaderboards")
 RESULTS = "results.jsonl"
+BOARD = "leaderboard.json"
 TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
+
+
+def published_suites(root: str | os.PathLike = DEFAULT_ROOT) -> list[str]:
+    """The suites with a leaderboard under `root` (a folder named after the suite holding leaderboard.json):
+    publishing a new one is building it once; `deint leaderboard --all` then keeps it up to date."""
+    root = Path(root)
+    return [s for s in list_suites() if (root / s / BOARD).is_file()]
 
 
 def default_policies() -> list[str]:
@@ -76,7 +83,7 @@ class Scope:
     @classmethod
     def of_folder(cls, folder: Path, suite: str) -> Scope:
         """The scope an existing leaderboard folder was built with (the whole suite if none)."""
-        path = folder / "leaderboard.json"
+        path = folder / BOARD
         if not path.exists():
             return cls(suite)
         try:

@@ -216,12 +216,12 @@ def test_records_of_another_policy_version_are_replayed(tmp_path, monkeypatch):
     board = write(root / "core-v0", SCOPE, reps=100)
     assert board["rows"] == [] and board["stale"] == {"random": 2}
     assert "stale" in (root / "core-v0" / "README.md").read_text()
-    # Building replays them under version 2; the old ones stay in the file, keyed apart.
+    # Building replays them under version 2; the published file then drops the superseded ones.
     _, board = build(SCOPE, ["random"], workers=1, root=root, progress=False, reps=100)
     assert len(played) == 2 and all(j.policy_version == 2 for j in played)
-    assert [r["policy_version"] for r in board["rows"]] == [2] and board["stale"] == {"random": 2}
+    assert [r["policy_version"] for r in board["rows"]] == [2] and board["stale"] == {}
     recs = read_records(path)
-    assert sorted(r.policy_version for r in recs) == [1, 1, 2, 2] and set(v1.splitlines()) <= set(
+    assert sorted(r.policy_version for r in recs) == [2, 2] and not set(v1.splitlines()) & set(
         path.read_text().splitlines())
     played.clear()
     build(SCOPE, ["random"], workers=1, root=root, progress=False, reps=100)

@@ -131,6 +131,7 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
 
     with results_lock(folder / RESULTS):
         records = read_records(folder / RESULTS) if records is None else records
+        records = without_superseded(records)
         board, profiles = aggregate(records, scope, reps=reps)
         files = {RESULTS: results_text(records)}
         files.update(render.render_all(board))
@@ -185,6 +186,17 @@ def current_version(rec: EpisodeRecord) -> int | None:
         return policy_info(parse_policy_spec(rec.policy)[0]).version
     except DeintError:
         return None
+
+
+def without_superseded(records: list[EpisodeRecord]) -> list[EpisodeRecord]:
+    """Drop the stale records (another version of their policy) whose episode has been replayed at the
+    registry's version; a stale record not yet replayed stays, and is counted as stale."""
+    def episode(r: EpisodeRecord) -> tuple:
+        return r.policy, r.scenario, r.scenario_hash, r.seed
+
+    replayed = {episode(r) for r in records if r.policy_version == current_version(r)}
+    return [r for r in records
+            if current_version(r) in (None, r.policy_version) or episode(r) not in replayed]
 
 
 def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,

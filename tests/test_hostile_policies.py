@@ -19,7 +19,7 @@ from baselines import ekf
 from baselines.coupled import EKFCoupled
 from baselines.ekf import EKFBank
 from baselines.genie import Genie
-from deint_env import io
+from deint_env import formats
 from deint_env.cli import main
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable
@@ -61,7 +61,7 @@ def write_case(tmp_path, case: str) -> tuple[str, str]:
 
 def episode_of(path: str, pri: str):
     priors = Priors.from_json_dict(json.loads(open(pri).read()))
-    return io.read_pulses(path, priors)
+    return formats.read_pulses(path, priors)
 
 
 HOSTILE = {  # case -> the reason each policy gives

@@ -9,8 +9,11 @@ phi^j = argmin_i (c_ij + r_k^i); step 3 carries the KF of the chosen survivor (3
 
 Reading of (3.2).  By default (`accumulate="lookahead"`) the costs accumulate as published,
 r_{k+1}^j = min_i (c_ij + r_k^i): each survivor's cost carries its best look-ahead cost, so every
-look-ahead error is counted again at each later pulse.  On MK94's Fig. 4/5 sweep this reaches the
-genie's error rate up to sigma_w^2 = 2 (`deint reproduce mk94-fig4-5`).  `accumulate="sequence"` is
+look-ahead error is counted again at each later pulse.  On MK94's Fig. 4/5 sweep (Delta = 3, Sigma_{1|0}
+= I) this is within 0.006 of the genie's P_e up to sigma_w^2 = 1 on the ten test seeds; from 1.5 on
+some start-ups are lost for good (8 and 13 of 100 train seeds at 1.5 and 2; `deint reproduce
+mk94-fig4-5`), where the prior T2 = 22 (true 17) lets the early pulses fit the swapped sources.
+`accumulate="sequence"` is
 the other reading of "the cost of the best sequence ending in source i": r accumulates the errors of
 the sequence itself, r_{k+1}^j = r_k^phi + e_{k+1}^2, while c_ij only choose phi; under it a look-ahead
 as long as the data *is* the optimal tree search (2.19) (tests check that).  The first pulse's own

@@ -27,6 +27,7 @@ SUITE = "paper-v1"
 SWEEP = (0.1, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0)  # Figs. 4-5, the mk94-two-var* scenarios
 PRIOR_VARS = (1.0, 10.0, 100.0)  # Sigma_{1|0} = v I for the Fig. 4/5 sensitivity rows (the paper: I)
 MK94_FIG12_PERIODS = (10.01, 29.98)  # the paper's final estimates in VI-A-2 (true: 11, 30)
+STARTUP_VARS, STARTUP_SEEDS = (1.5, 2.0), 100  # Fig. 4/5 start-up losses counted on this many train seeds
 
 
 def _seeds(name: str, quick: bool, n: int = 10) -> list[int]:
@@ -47,6 +48,12 @@ def fig4_spec(var: float, prior_var: float = 1.0, n_pulses: int | None = None) -
     sd = (math.sqrt(prior_var),)
     spec = spec.replace(priors=dataclasses.replace(spec.priors, period_std=sd, phase_std=sd))
     return spec.replace(n_pulses=min(spec.n_pulses, n_pulses)) if n_pulses else spec
+
+
+def lost_source(pe: np.ndarray) -> np.ndarray:
+    """Per seed of P_e (seed, source): whether a source was lost (P_e > 0.3; the genie's, measured on
+    the Fig. 4/5 scenarios, stays below 0.23 per seed and source up to sigma_w^2 = 2)."""
+    return np.any(pe > 0.3, axis=-1)
 
 
 def pe_runs(spec: ScenarioSpec, seeds: list[int], policy: Callable[[], Any]) -> np.ndarray:
@@ -180,11 +187,20 @@ def fig4_5(out: Path, quick: bool) -> Report:
     for v in PRIOR_VARS:
         runs = _pe_sweep(sweep, seeds, quick, lambda: FDP(lookahead=3), prior_var=v)  # (var, seed, source)
         gap = np.abs(runs.mean(axis=1) - genie)[low].max()
-        lost = ", ".join(f"{int(n)}" for n in np.sum(np.any(runs > 0.3, axis=2), axis=1))
+        lost = ", ".join(f"{int(n)}" for n in np.sum(lost_source(runs), axis=1))
         rep.add(f"Delta=3, Sigma={v:g} I: max |P_e - P_e(genie)| over sigma^2 <= 2", f"{gap:.3f}",
                 "no gain beyond Delta=3 ('optimal')" if v == 1 else "",
                 f"seeds losing a source (P_e > 0.3) at sigma^2 = {', '.join(f'{x:g}' for x in sweep)}: {lost} "
                 f"of {len(seeds)}")
+    # ten test seeds are too few for a rate: count the start-ups lost on train seeds
+    train_seeds = list(find_entry(f"{SUITE}/mk94-two-var1").train)[: (4 if quick else STARTUP_SEEDS)]
+    for v in PRIOR_VARS[:2]:
+        lost = [int(lost_source(pe_runs(fig4_spec(var, v), train_seeds, lambda: FDP(lookahead=3))).sum())
+                for var in STARTUP_VARS]
+        rep.add(f"Delta=3, Sigma={v:g} I: train seeds losing a source at sigma^2 = "
+                f"{', '.join(f'{x:g}' for x in STARTUP_VARS)}", ", ".join(f"{n} of {len(train_seeds)}" for n in lost),
+                "both tracked" if v == 1 else "", "a start-up failure: the prior T2 = 22 (true 17) lets the "
+                "first pulses fit the swapped sources (tests: seed 1000004)")
     rep.add("why the rows differ", "", "", "the paper's Delta=1 failure comes from (2.3)'s initialisation: with "
             "tau_1 = phi a source's first pulse is predicted a period late; predicting it at its phase (DESIGN "
             "section 8) lets even Delta=1 track both sources at low jitter")

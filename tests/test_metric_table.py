@@ -28,22 +28,22 @@ def records():
 
 
 def test_a_metric_added_to_the_table_shows_everywhere(records, tmp_path, monkeypatch):
-    link = Metric("link_accuracy", "link accuracy", ".4f", "median", summary=True)
+    link = Metric("spurious_recall", "spurious recall", ".4f", "median", summary=True)
     monkeypatch.setattr(metrics, "METRICS", metrics.METRICS + (link,))
     rows = runner.summarise(records, reps=100)
     for row in rows:
-        played = [r.get("link_accuracy") for r in records if r.policy == row["policy"]]
-        assert row["link_accuracy"] == float(np.median(played))  # reduced as the table says
+        played = [r.get("spurious_recall") for r in records if r.policy == row["policy"]]
+        assert row["spurious_recall"] == float(np.median(played))  # reduced as the table says
     table = runner.format_table(rows)
-    assert "link accuracy" in table.splitlines()[0]
-    assert format(rows[0]["link_accuracy"], ".4f") in table
+    assert "spurious recall" in table.splitlines()[0]
+    assert format(rows[0]["spurious_recall"], ".4f") in table
 
     folder, board = build(SCOPE, ["random"], workers=1, root=tmp_path, progress=False, reps=100)
-    assert board["rows"][0]["link_accuracy"] is not None
-    assert "| link accuracy |" in (folder / "README.md").read_text()
-    assert "link accuracy" in (folder / "index.html").read_text()
-    assert "link_accuracy" in next(csv.reader(io.StringIO((folder / "leaderboard.csv").read_text())))
-    assert "link_accuracy" in json.loads((folder / "leaderboard.json").read_text())["rows"][0]
+    assert board["rows"][0]["spurious_recall"] is not None
+    assert "| spurious recall |" in (folder / "README.md").read_text()
+    assert "spurious recall" in (folder / "index.html").read_text()
+    assert "spurious_recall" in next(csv.reader(io.StringIO((folder / "leaderboard.csv").read_text())))
+    assert "spurious_recall" in json.loads((folder / "leaderboard.json").read_text())["rows"][0]
 
 
 def test_runner_and_leaderboard_aggregate_alike(records, tmp_path):

@@ -20,7 +20,7 @@ as long as the data *is* the optimal tree search (2.19) (tests check that).  The
 error starts the costs (r_1^i = e_1^2 under source i, where the paper writes 0) for the same reason.
 
 Initialisation (2.3).  By default a source's first pulse is predicted at its phase (blocks start at
-tau = phi - T, DESIGN section 8).  `init="mk94"` is the literal (2.3): tau_1 = phi, the first received
+tau = phi - T, docs/design.md section 8).  `init="mk94"` is the literal (2.3): tau_1 = phi, the first received
 pulse predicted at the phase of its source and every other source's first pulse at phi + T.
 
 Decisions are fixed-lag: pulse k is labelled when y_{k+Delta} arrives, with s_k of the best

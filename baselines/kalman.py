@@ -11,7 +11,7 @@ A block is five arrays of any common shape (structure of arrays, so every step i
 numpy operations over all hypotheses at once): `period` T, `tau` (the last arrival), and the packed
 covariance `p_tt`, `p_tx`, `p_xx` (var T, cov(T, tau), var tau).
 
-Conventions (see DESIGN section 8 on (2.3)): a block starts at tau = phi - T with
+Conventions (see docs/design.md section 8 on (2.3)): a block starts at tau = phi - T with
 var tau = var phi + var T and cov(T, tau) = -var T, so that `predict` puts the source's first pulse
 at its phase phi with variance var phi and no correlation with T.  `predict` is F of (2.8), plus
 MK94 II-C-2's stochastic sources: T <- alpha T + v_T (drift) and an interval noise on tau

@@ -1,4 +1,4 @@
-"""The `deint` command (DESIGN section 7).
+"""The `deint` command (docs/design.md section 7).
 
     deint simulate SCENARIO --seed S -o PULSES.csv [--priors-out PRIORS.json] [--true-priors-out TRUE.json]
     deint label PULSES.csv --policy SPEC [--priors PRIORS.json | --n-sources N --prior-periods a,b,...] -o LABELS.csv

@@ -66,7 +66,7 @@ class Priors:
                 kw[k] = np.asarray(info[k], dtype=np.float64)
         return cls(**kw)
 
-    # ---- the priors file of DESIGN section 7 -------------------------------------------------------
+    # ---- the priors file of docs/design.md section 7 --------------------------------------------
     def to_json_dict(self) -> dict[str, Any]:
         """`{"period": [...], "phase": [...], "jitter_std": s, ...}`; unknown phases are left out."""
         if self.blind:

@@ -1,4 +1,4 @@
-"""Scoring a labelling (DESIGN section 6): per-episode metrics and suite aggregates.
+"""Scoring a labelling (docs/design.md section 6): per-episode metrics and suite aggregates.
 
 Per episode: label accuracy (the env's reward rule), per-source error probability P_e^i (MK94 eq. 5.1)
 and its mean, permutation-matched accuracy (Hungarian over the confusion matrix), link accuracy,

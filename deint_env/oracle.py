@@ -1,5 +1,5 @@
 """The scoring oracle: the known-parameter MAP labelling, the ceiling of the normalised score
-(DESIGN section 6).  The runner scores every episode against it, and the `genie` policy
+(docs/design.md section 6).  The runner scores every episode against it, and the `genie` policy
 (baselines/genie.py) plays it.
 
 The genie knows every source's noise-free emission schedule (the true parameters: periods, phases,

@@ -1,4 +1,4 @@
-"""The policy protocol (DESIGN section 5) and the one policy registry.
+"""The policy protocol (docs/design.md section 5) and the one policy registry.
 
 A policy has `reset(priors, info)` and `act(obs) -> label`, declares the `lag` it needs, and may
 expose `estimates()` -> {"period": array, "phase": array} (one entry per label track) for the

@@ -1,5 +1,5 @@
 """The receiver's waveform front end: Dai & Mendel's detection-oriented Kalman filter (DM89) for
-Bernoulli-Gaussian spike trains, and its two uses in deint-bench (DESIGN section 8):
+Bernoulli-Gaussian spike trains, and its two uses in deint-bench (docs/design.md section 8):
 
 (a) the waveform front end `detect_pulses`: the pulse train sampled onto a grid of spikes
     mu(k) = q(k) r(k), convolved with a channel response v(k), plus white noise n(k) (DM89 (1)-(3)),

@@ -1,4 +1,4 @@
-"""Evaluating policies on scenarios and suites (DESIGN sections 5-6).
+"""Evaluating policies on scenarios and suites (docs/design.md sections 5-6).
 
 `evaluate(policies, target)` runs every (scenario, seed, policy) job of a suite split on a local
 process pool (or, with `executor="ray"`, as tasks on a Ray instance or cluster: the same records but

@@ -214,7 +214,7 @@ DM89_CHANNEL = ((0.91003, -2.4203, 2.3408, -0.82997), (1.0, -3.3198, 4.5146, -2.
 
 @dataclass(frozen=True)
 class WaveformSpec:
-    """An optional waveform front end (DESIGN section 8, DM89): the received pulses become spikes on a
+    """An optional waveform front end (docs/design.md section 8, DM89): the received pulses become spikes on a
     grid of `sample_period` (a pulse's amplitude is its spike's height; 1 without amplitudes), pass
     through the channel V(z) = numerator / denominator (default: DM89's fourth-order ARMA), get white
     noise of std `noise_std`, and are detected online by Dai & Mendel's detection-oriented Kalman

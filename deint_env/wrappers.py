@@ -1,4 +1,4 @@
-"""Wrappers for learned agents (DESIGN section 4): float32, scale-free, fixed-shape pulse features.
+"""Wrappers for learned agents (docs/design.md section 4): float32, scale-free, fixed-shape pulse features.
 
 `FeatureTracker` turns the raw pulse stream plus the labels the agent has given so far into one flat
 feature vector per decision.  `PulseFeatures` runs it inside an env (it sees the agent's actions);

@@ -277,7 +277,7 @@ def test_reset_info_priors_without_truth():
     _, info = env.reset(seed=5)
     ep = env.unwrapped.episode
     assert set(info["priors"]) == set(ep.priors.as_info())
-    # DESIGN 4: periods, phases, their spreads, source probabilities, jitter
+    # docs/design.md section 4: periods, phases, their spreads, source probabilities, jitter
     assert {"period", "phase", "period_std", "phase_std", "source_prob", "jitter_std"} <= set(info["priors"])
     assert not {"source", "mask", "truth", "schedule_toa", "toa"} & (set(info) | set(info["priors"]))
     np.testing.assert_array_equal(info["priors"]["period"], ep.priors.period)

@@ -7,7 +7,7 @@ that reach the paths no suite uses (amplitudes, windows, merges, modulations, th
 ties).  A published suite never changes, so neither may these hashes.
 
 Regenerate the file only when an intended simulator change comes with new suite versions (a change
-that moves any episode moves scores, see DESIGN section 3):
+that moves any episode moves scores, see docs/design.md section 3):
 
     python tests/test_episode_hashes.py --write
 """

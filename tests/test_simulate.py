@@ -441,7 +441,7 @@ def test_truth_n_received_counts_mask_bits():
     assert ep.truth.schedule_offsets[-1] == ep.truth.schedule_toa.size == ep.truth.schedule_pri.size
 
 
-# ---- the priors file (DESIGN section 7) round trip ----------------------------------------------------
+# ---- the priors file (docs/design.md section 7) round trip -----------------------------------------
 def _priors_round_trip(spec):
     import json
 

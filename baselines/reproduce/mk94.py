@@ -134,7 +134,7 @@ def fig3(out: Path, quick: bool) -> Report:
     plt.close(fig)
     rep.files.append("mk94-fig3.png")
     rep.add("note", "TOAs are received sorted", "", "with sigma_w=100 >> T the received order is not the emission "
-            "order the paper's model assumes; our episodes are in arrival order (DESIGN section 3)")
+            "order the paper's model assumes; our episodes are in arrival order (docs/design.md section 3)")
     return rep
 
 
@@ -154,7 +154,7 @@ def fig4_5(out: Path, quick: bool) -> Report:
     plt = figure()
     fig, axes = plt.subplots(2, 3, figsize=(11, 6), sharex=True, sharey=True)
     pe3 = None
-    for row, (init, what) in enumerate((("phase", "first pulse predicted at its phase (ours, DESIGN)"),
+    for row, (init, what) in enumerate((("phase", "first pulse predicted at its phase (ours, design section 8)"),
                                         ("mk94", "literal (2.3): first pulse of a source at phi + T"))):
         pe = np.array([_pe_sweep(sweep, seeds, quick, lambda: FDP(lookahead=d, init=init)).mean(axis=1)
                        for d in deltas])
@@ -202,7 +202,7 @@ def fig4_5(out: Path, quick: bool) -> Report:
                 "both tracked" if v == 1 else "", "a start-up failure: the prior T2 = 22 (true 17) lets the "
                 "first pulses fit the swapped sources (tests: seed 1000004)")
     rep.add("why the rows differ", "", "", "the paper's Delta=1 failure comes from (2.3)'s initialisation: with "
-            "tau_1 = phi a source's first pulse is predicted a period late; predicting it at its phase (DESIGN "
+            "tau_1 = phi a source's first pulse is predicted a period late; predicting it at its phase (docs/design.md "
             "section 8) lets even Delta=1 track both sources at low jitter")
     return rep
 

@@ -1,4 +1,4 @@
-"""File formats (DESIGN section 7): `files` (the one atomic writer, whole-file reads), `pulse_csv`
+"""File formats (docs/design.md section 7): `files` (the one atomic writer, whole-file reads), `pulse_csv`
 (pulse and label files), `json_files` (priors and scenario files) and `tdc` (Turing Deinterleaving
 Challenge HDF5 files; imported on its own, it needs h5py).  The CSV and JSON names are re-exported
 here: `from deint_env import formats; formats.read_pulses(...)`."""

@@ -1,4 +1,4 @@
-"""Pulse files and label files (CSV; DESIGN section 7).
+"""Pulse files and label files (CSV; docs/design.md section 7).
 
 Pulse file: CSV with a header naming its columns, one pulse per line, sorted by TOA::
 

@@ -103,6 +103,7 @@ def save_checkpoint(path: str | os.PathLike, tensors: dict[str, Any], meta: Chec
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, 0o644)  # mkstemp makes the file private; a checkpoint is meant to be shared
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -2,7 +2,7 @@
 
 `FeatureTracker` turns the raw pulse stream plus the labels the agent has given so far into one flat
 feature vector per decision.  `PulseFeatures` runs it inside an env (it sees the agent's actions);
-a policy outside any env (e.g. `agents.ppo.PPOPolicy`) runs the same tracker from (obs, priors), so
+a policy outside any env (e.g. `agents.policy.AgentPolicy`) runs the same tracker from (obs, priors), so
 an agent sees identical features in training and in evaluation.  `SplitSeeds` makes an env play only
 a suite's train (or test) seeds.
 

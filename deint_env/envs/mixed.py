@@ -13,7 +13,10 @@ from deint_env.errors import DeintError
 from deint_env.simulate import simulate_many
 from deint_env.suites import SuiteEntry, find_entry, list_suites, load_suite
 
-SPLITS = ("train", "test")
+SPLITS = ("train", "validation", "test")
+# The last seeds of every train range are held out of training for validation (early stopping, model
+# selection): "train" plays the rest of the train range, "validation" only those.
+VALIDATION_SEEDS = 1000
 
 
 def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = None,
@@ -38,11 +41,21 @@ def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = N
     return chosen
 
 
+def split_seeds(entry: SuiteEntry, split: str) -> range:
+    """The episode seeds of `entry` in `split` (module constants)."""
+    if split == "test":
+        return range(entry.test.start, entry.test.stop)
+    hold = min(VALIDATION_SEEDS, len(entry.train) // 2)
+    cut = entry.train.stop - hold
+    return range(entry.train.start, cut) if split == "train" else range(cut, entry.train.stop)
+
+
 class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
     """`DeinterleaveVectorEnv` whose sub-envs draw a scenario and a seed of its `split` per episode.
 
     Scenarios come from `select_entries(suite, scenarios, tags)`, uniformly; episode seeds from the
-    scenario's `split` seed range only (`split="train"` never plays a test seed).  The action space
+    scenario's `split` seed range only: "train" (its train range but the last `VALIDATION_SEEDS`),
+    "validation" (those last seeds) or "test" (never played by "train" or "validation").  The action space
     is `Discrete(L + 1)` for the largest label count L among the scenarios; label L is spurious for
     every episode, and a label beyond an episode's own tracks is simply wrong (the token features
     mask them).  All scenarios must be anchored, or all blind.  `reset(seed=s)` seeds sub-env i's
@@ -66,8 +79,7 @@ class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
         self.scenario_names = [n for n, _ in self.entries]
 
     def seed_range(self, entry: SuiteEntry) -> range:
-        r = entry.train if self.split == "train" else entry.test
-        return range(r.start, r.stop)
+        return split_seeds(entry, self.split)
 
     def _start(self, rows: list[int], seeds: list[int | None], infos: dict[str, Any]) -> None:
         picks: list[tuple[int, int]] = []  # (entry index, episode seed) per row

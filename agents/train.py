@@ -2,6 +2,7 @@
 
     deint train --suite core-v0 --algo maskable-ppo --n-envs 16 --time-budget 1800 --out runs/train/core
     deint train --scenario core-v0/core-n6-spread4-jitter0.05 --algo ppo --timesteps 200000
+    deint train --suite core-v0 --algo dagger --time-budget 900       # imitation of the truth (agents.imitation)
 
 Hyper-parameters come from rl-zoo-style YAML files, one per algorithm (`agents/hyperparams/ALGO.yml`),
 keyed by scenario (`suite/scenario`), then suite, then `default`; `--hyperparams FILE` names another
@@ -37,7 +38,7 @@ from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn")
+ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger")
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
 # Keys of a YAML entry that are not the algorithm's own keyword arguments (as in rl-zoo).
@@ -189,6 +190,7 @@ class _Run:
         self.evaluations: list[dict[str, Any]] = []
         self.t0 = time.perf_counter()
         self.seconds_before = 0.0
+        self.iteration = 0  # DAgger's iteration count (agents.imitation)
 
     def meta(self, model) -> CheckpointMeta:
         from deint_env.features import TrackLayout
@@ -203,6 +205,7 @@ class _Run:
             timesteps=int(model.num_timesteps), hyperparameters=json.loads(json.dumps(hp, default=str)),
             versions=_versions(), seed=self.config.seed,
             notes={"train_seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1),
+                   "iteration": self.iteration,
                    "best_validation_accuracy": None if self.best_score == -np.inf else self.best_score,
                    "train_seed_ranges": self.train_ranges})
 
@@ -226,8 +229,17 @@ def train(config: TrainConfig) -> TrainResult:
     if config.algo not in ALGOS:
         raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
     run = _Run(config)
-    algo_cls, policy_cls = _algo_class(config.algo)
     run.out.mkdir(parents=True, exist_ok=True)
+    if config.algo == "dagger":
+        from agents.imitation import dagger
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return dagger(config, run)
+        finally:
+            torch.set_num_threads(threads)
+    algo_cls, policy_cls = _algo_class(config.algo)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small networks: thread hand-offs cost more than they save
     tb = None

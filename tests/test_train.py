@@ -79,3 +79,29 @@ def test_cli_train_refuses_bad_arguments_with_one_line(tmp_path, args, match):
     run = subprocess.run([sys.executable, "-c", "from deint_env.cli import main; raise SystemExit(main())", "train",
                           "--scenario", SCENARIO, "-o", str(tmp_path / "o"), *args], capture_output=True, text=True)
     assert run.returncode == 2 and match in run.stderr and len(run.stderr.strip().splitlines()) == 1
+
+
+def test_dagger_expert_is_the_truth():
+    from agents.imitation import expert_actions
+    from deint_env.envs.tokens import make_tokens_vector_env
+
+    env = make_tokens_vector_env(3, suite="robust-v0", lag=1, max_tracks=8)
+    env.reset(seed=0)
+    rewards, labelled = 0.0, 0
+    for _ in range(600):
+        ready = env.features.ready
+        _, r, *_ = env.step(expert_actions(env, 8))
+        rewards, labelled = rewards + r[ready].sum(), labelled + ready.sum()
+    # robust-v0 merges pulses: the expert names the primary source, right under any merged source.
+    assert labelled > 1500 and rewards == labelled
+
+
+@pytest.mark.slow
+def test_a_tiny_dagger_run_learns_something(tmp_path):
+    hp = tmp_path / "hp.yml"
+    hp.write_text("default:\n  rollout_steps: 100\n  epochs: 2\n  policy_kwargs: {d_model: 16, heads: 2}\n")
+    result = train(tiny(tmp_path / "d", algo="dagger", hyperparams_file=hp, n_envs=8, timesteps=3200,
+                        eval_every=1600, eval_episodes=4, scenarios=("core-v0/core-n2-spread4-jitter0.05",)))
+    assert read_meta(result.last).algorithm == "dagger" and result.timesteps == 3200
+    # Measured: ~0.9 validation accuracy after 3200 steps (random labels: 0.33).
+    assert result.evaluations[-1]["validation_accuracy"] > 0.5

@@ -249,13 +249,13 @@ def load_weights(policy: nn.Module, tensors: dict[str, torch.Tensor], where: str
 
 
 def action_scores(policy: BasePolicy, obs: dict[str, np.ndarray] | np.ndarray) -> torch.Tensor:
-    """Logits (actor-critic) or Q-values (DQN) of a batch of observations."""
-    with torch.no_grad():
-        if isinstance(obs, dict):
-            x: Any = {k: torch.as_tensor(v) for k, v in obs.items()}
-        else:
-            x = torch.as_tensor(obs)
+    """Logits (actor-critic) or Q-values (DQN) of a batch of observations (float32, already in the
+    layout's range, so SB3's observation preprocessing is skipped: it costs more than the network
+    on a batch of one)."""
+    with torch.inference_mode():
+        x: Any = ({k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in obs.items()} if isinstance(obs, dict)
+                  else torch.from_numpy(np.ascontiguousarray(obs)))
         if isinstance(policy, DQNPolicy):
-            return policy.q_net(x)
-        features = policy.extract_features(x, policy.pi_features_extractor)
+            return policy.q_net.q_net(policy.q_net.features_extractor(x))
+        features = policy.pi_features_extractor(x)
         return policy.action_net(policy.mlp_extractor.forward_actor(features))

@@ -168,3 +168,30 @@ def test_mixed_env_plays_whole_episodes_with_right_rewards():
         _, r, term, _, info = venv.step(a)
         total += r
     assert term.all() and np.array_equal(total, np.full(4, 1000.0))
+
+
+def test_same_step_autoreset_is_next_step_without_the_reset_steps():
+    from gymnasium.vector import AutoresetMode
+
+    from deint_env.envs.vector import DeinterleaveVectorEnv
+
+    spec = short("core-v0/core-n2-spread4-jitter0.05", 30)
+    nxt = DeinterleaveVectorEnv(2, spec, lag=1)
+    same = DeinterleaveVectorEnv(2, spec, lag=1, autoreset_mode=AutoresetMode.SAME_STEP)
+    o1, _ = nxt.reset(seed=5)
+    o2, _ = same.reset(seed=5)
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(100):
+        a = rng.integers(0, 3, 2)
+        o1, r1, t1, _, _ = nxt.step(a)
+        o2, r2, t2, _, info = same.step(a)
+        assert np.array_equal(r1, r2) and np.array_equal(t1, t2)
+        if t1.any():  # NEXT_STEP needs one more step to show the new episode; SAME_STEP already does
+            ends += 1
+            assert info["_final_obs"].tolist() == t1.tolist()
+            o1, *_ = nxt.step(a)
+        assert all(np.array_equal(o1[k], o2[k]) for k in o1)
+    assert ends >= 3
+    with pytest.raises(DeintError, match="autoreset_mode"):
+        DeinterleaveVectorEnv(2, spec, autoreset_mode="Disabled")

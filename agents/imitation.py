@@ -6,8 +6,8 @@ unambiguous.  Iteration i rolls the batched token env out with the expert's acti
 beta_i = beta_decay^i and the learner's greedy action otherwise, so the learner sees the states its
 own mistakes lead to (its features depend on its past labels); every described pulse is stored with
 the expert's label, and the network is fitted by cross-entropy on the aggregate (capped at `buffer`
-samples, oldest dropped).  Anchored scenarios only: in blind mode the "right" label depends on the
-learner's own track naming.  Checkpoints are the same single-file format as the RL agents
+samples, oldest dropped).  In blind mode the right label depends on the learner's own track naming:
+the expert continues the track holding the pulse's true predecessor, or opens an unused one.  Checkpoints are the same single-file format as the RL agents
 (architecture `track-net`), so `agent:checkpoint=PATH` plays them and PPO can fine-tune them.
 """
 
@@ -23,10 +23,10 @@ from gymnasium import spaces
 
 from agents.checkpoint import load_checkpoint
 from agents.networks import TrackPolicy, action_scores, architecture_of, load_weights
-from deint_env.envs.mixed import select_entries
 from deint_env.envs.tokens import make_tokens_vector_env
 from deint_env.errors import DeintError
 from deint_env.features import TrackLayout
+from deint_env.labels import SPURIOUS_PRED
 
 if TYPE_CHECKING:
     from agents.train import TrainConfig, TrainResult
@@ -53,12 +53,29 @@ class DaggerParams:
 
 
 def expert_actions(env, max_tracks: int) -> np.ndarray:
-    """The truth's label (track index, or max_tracks = spurious) of each sub-env's described pulse."""
+    """The truth's label (track index, or max_tracks = spurious) of each sub-env's described pulse.
+
+    Anchored: the pulse's source.  Blind (link rewards): the track the learner gave the pulse's true
+    predecessor, or for a source's first pulse a track the learner has not used yet (its link is
+    "none"), so the expert continues the learner's own track naming.
+    """
     feats, base = env.features, env.env.unwrapped
     out = np.full(env.num_envs, max_tracks, np.int64)
     for i in np.flatnonzero(feats.ready).tolist():
-        s = int(base.episodes[i].source[feats.labelled[i]])
-        out[i] = s if s >= 0 else max_tracks
+        j = int(feats.labelled[i])
+        if not base.blind:
+            s = int(base.episodes[i].source[j])
+            out[i] = s if s >= 0 else max_tracks
+            continue
+        pred = int(base._pred[i, j])
+        if pred == SPURIOUS_PRED:
+            continue
+        track = int(base._labels[i, pred]) if pred >= 0 else -1
+        if not 0 <= track < feats.n_labels[i] or base._last[i, track] != pred:
+            free = np.flatnonzero(feats.exists[i] & (feats.count[i] == 0))
+            # No free track left: reuse the one idle longest (its link is lost either way).
+            track = int(free[0]) if free.size else int(np.nanargmin(np.where(feats.exists[i], feats.anchor[i], np.inf)))
+        out[i] = track
     return out
 
 
@@ -72,8 +89,6 @@ def dagger(config: TrainConfig, run) -> TrainResult:
     from agents.train import TrainResult
 
     params = DaggerParams.from_yaml({**run.algo_kwargs, "policy_kwargs": run.policy_kwargs, "n_envs": run.n_envs})
-    if any(e.spec.blind for _, e in select_entries(config.suite, config.scenarios, config.tags)):
-        raise DeintError("dagger learns from the truth's track labels: anchored scenarios only")
     torch.manual_seed(config.seed)
     layout = TrackLayout(max_tracks=run.max_tracks, lookahead=config.lag)
     policy = TrackPolicy(layout.observation_space(), spaces.Discrete(layout.n_actions), lambda _: params.learning_rate,

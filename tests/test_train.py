@@ -81,18 +81,20 @@ def test_cli_train_refuses_bad_arguments_with_one_line(tmp_path, args, match):
     assert run.returncode == 2 and match in run.stderr and len(run.stderr.strip().splitlines()) == 1
 
 
-def test_dagger_expert_is_the_truth():
+@pytest.mark.parametrize("suite", ["robust-v0", "blind-v0"])
+def test_dagger_expert_is_the_truth(suite):
     from agents.imitation import expert_actions
     from deint_env.envs.tokens import make_tokens_vector_env
 
-    env = make_tokens_vector_env(3, suite="robust-v0", lag=1, max_tracks=8)
+    env = make_tokens_vector_env(3, suite=suite, lag=1, max_tracks=8)
     env.reset(seed=0)
     rewards, labelled = 0.0, 0
     for _ in range(600):
         ready = env.features.ready
         _, r, *_ = env.step(expert_actions(env, 8))
         rewards, labelled = rewards + r[ready].sum(), labelled + ready.sum()
-    # robust-v0 merges pulses: the expert names the primary source, right under any merged source.
+    # robust-v0 merges pulses: the expert names the primary source, right under any merged source;
+    # blind-v0 rewards links: the expert continues the learner's track of the true predecessor.
     assert labelled > 1500 and rewards == labelled
 
 

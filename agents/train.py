@@ -20,7 +20,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -201,13 +201,13 @@ class _Run:
         return CheckpointMeta(
             architecture=architecture_of(model.policy), features=layout.to_dict(), algorithm=self.config.algo,
             scenarios=self.scenarios, suite_hashes=self.suite_hashes,
-            train_seeds=[lo for lo, _ in self.train_ranges[:1]] + [hi for _, hi in self.train_ranges[:1]],
+            train_seeds=list(self.train_ranges[0]),
             timesteps=int(model.num_timesteps), hyperparameters=json.loads(json.dumps(hp, default=str)),
             versions=_versions(), seed=self.config.seed,
             notes={"train_seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1),
                    "iteration": self.iteration,
                    "best_validation_accuracy": None if self.best_score == -np.inf else self.best_score,
-                   "train_seed_ranges": self.train_ranges})
+                   "train_seed_ranges": [list(r) for r in self.train_ranges]})
 
     def checkpoint(self, model) -> None:
         policy = model.policy
@@ -274,7 +274,8 @@ def train(config: TrainConfig) -> TrainResult:
         if remaining > 0:
             model.learn(total_timesteps=remaining, callback=_Checkpointer(run), reset_num_timesteps=False,
                         progress_bar=config.progress, tb_log_name=config.algo)
-            run.checkpoint(model)
+            if not run.evaluations or run.evaluations[-1]["timesteps"] != model.num_timesteps:
+                run.checkpoint(model)
         venv.close()
     finally:
         torch.set_num_threads(threads)
@@ -282,6 +283,3 @@ def train(config: TrainConfig) -> TrainResult:
     return TrainResult(last, best if best.is_file() else None, int(model.num_timesteps),
                        run.seconds_before + time.perf_counter() - run.t0, run.evaluations)
 
-
-def config_dict(config: TrainConfig) -> dict[str, Any]:
-    return {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}

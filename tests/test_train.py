@@ -47,6 +47,7 @@ def test_tiny_training_writes_checkpoints_and_resumes(tmp_path, algo):
     assert lines[-1]["timesteps"] == again.timesteps and len(lines) > len(first.evaluations)
 
 
+@pytest.mark.slow
 def test_resume_refuses_another_algorithm(tmp_path):
     hp = tmp_path / "hp.yml"
     hp.write_text("default:\n  n_steps: 64\n  batch_size: 64\n  n_epochs: 1\n  policy_kwargs: {d_model: 8, heads: 2}\n")

@@ -32,6 +32,10 @@ valid = 0.  Look-ahead pulses are not (yet) featured.
 
 Anchored mode only: the features are measured in units of the prior periods.  Blind scenarios have
 no priors and raise `DeintError`.
+
+`TrackTokens` / `TrackTokensVector` (end of this module) give the newer token features of
+`deint_env.features` (layout 2): any number of sources up to a declared maximum, action masks,
+look-ahead pulses, blind scenarios, computed in numpy for a whole vector env at once.
 """
 
 from __future__ import annotations

@@ -177,3 +177,20 @@ def test_shipped_dagger_agent_beats_the_floors_on_a_core_test_episode():
     result = play(AgentPolicy(str(path)), episode, clustering=False)
     # Measured on the first test seed of all 45 core-v0 scenarios: mean accuracy 0.888 (fdp 0.890).
     assert result.metrics["accuracy"] > 0.9
+
+
+@pytest.mark.parametrize("n", [2, 3, 8])
+def test_one_checkpoint_labels_pulse_files_of_any_source_count(tmp_path, n):
+    from deint_env.cli import main
+    from deint_env.io import write_priors, write_pulses
+
+    episode = simulate(find_entry(f"core-v0/core-n{n}-spread4-jitter0.05").spec.replace(n_pulses=300), 1_000_000)
+    write_pulses(tmp_path / "p.csv", episode, truth=False)
+    write_priors(tmp_path / "pr.json", episode.priors)
+    ck = PPO_CHECKPOINT.parent / "dagger-core-v0-lag3.safetensors"
+    assert main(["label", str(tmp_path / "p.csv"), "--policy", f"agent:checkpoint={ck}", "--priors",
+                 str(tmp_path / "pr.json"), "-o", str(tmp_path / "l.csv")]) == 0
+    labels = np.loadtxt(tmp_path / "l.csv", delimiter=",", skiprows=1, usecols=1).astype(int)
+    truth = np.where(episode.source >= 0, episode.source, -1)
+    # Measured with the checked-in agent on these 300 pulses: accuracy 0.993, 0.987, 0.957 (2, 3, 8 sources).
+    assert labels.shape == (300,) and np.mean(labels == truth) > 0.85

@@ -542,26 +542,50 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 # deint train
 # ---------------------------------------------------------------------------------------------------
 def _add_train(sub) -> None:
-    p = sub.add_parser("train", help="train the PPO agent on a scenario's train seeds (needs the [rl] extra)",
-                       description="Train stable-baselines3 PPO on the float32 pulse features of SCENARIO, on its "
-                                   "train seeds only, and save the checkpoint (with a JSON sidecar).")
-    p.add_argument("--scenario", default=None, help="default: the agent's two-source scenario")
-    p.add_argument("--timesteps", type=int, default=100_000)
+    p = sub.add_parser("train", help="train a learned agent on train seeds (needs the [rl] extra)",
+                       description="Train a stable-baselines3 / sb3-contrib agent (the permutation-equivariant track "
+                                   "network on the token features) on the train seeds of a suite or scenarios, with "
+                                   "periodic safetensors checkpoints and validation; rerun to resume (agents/train.py).")
+    p.add_argument("--suite", default=None, help="train on every scenario of this suite (sampled per episode)")
+    p.add_argument("--scenario", action="append", default=[], help="SUITE/SCENARIO to train on (repeatable)")
+    p.add_argument("--tags", default="", help="only scenarios with all these tags (comma-separated)")
+    p.add_argument("--algo", default="maskable-ppo", help="maskable-ppo (default), ppo, a2c or dqn")
+    p.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
+    p.add_argument("--n-envs", type=int, default=None, help="parallel episodes (default: the YAML's n_envs)")
+    p.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("-o", "--out", default=None, help="checkpoint path (.zip); default: agents/checkpoints/")
+    p.add_argument("--lag", type=int, default=0, help="decision lag = look-ahead pulses featured")
+    p.add_argument("--eval-every", type=int, default=50_000, help="steps between checkpoints and validation")
+    p.add_argument("--eval-episodes", type=int, default=32, help="validation episodes per evaluation")
+    p.add_argument("--hyperparams", default=None, help="YAML file (default: agents/hyperparams/ALGO.yml)")
+    p.add_argument("-o", "--out", default=None, help="run directory (default: runs/train/ALGO-TARGET)")
+    p.add_argument("--into-package", action="store_true", help="allow an output directory inside the package")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     try:
-        from agents import ppo
+        from agents.train import TrainConfig, train
     except ImportError as e:
         raise DeintError(f"training needs {e.name}: pip install 'deint-bench[rl]'") from None
-    kwargs = {k: v for k, v in (("scenario", args.scenario), ("out", args.out)) if v is not None}
-    if args.timesteps < 1:
-        raise DeintError(f"--timesteps={args.timesteps} must be >= 1")
-    path = ppo.train(total_timesteps=args.timesteps, seed=args.seed, **kwargs)
-    _status(f"deint: trained {args.timesteps} steps -> {path}")
+    for name in ("timesteps", "n_envs", "eval_every", "eval_episodes"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise DeintError(f"--{name.replace('_', '-')}={value} must be >= 1")
+    if args.time_budget is not None and not args.time_budget > 0:
+        raise DeintError(f"--time-budget={args.time_budget} must be > 0 seconds")
+    target = args.suite or (args.scenario[0].replace("/", "-") if args.scenario else "none")
+    out = Path(args.out) if args.out else Path("runs") / "train" / f"{args.algo}-{target}"
+    config = TrainConfig(out=out, algo=args.algo, suite=args.suite, scenarios=tuple(args.scenario),
+                         tags=tuple(t for t in args.tags.split(",") if t), lag=args.lag, n_envs=args.n_envs,
+                         timesteps=args.timesteps, time_budget=args.time_budget, seed=args.seed,
+                         eval_every=args.eval_every, eval_episodes=args.eval_episodes,
+                         hyperparams_file=Path(args.hyperparams) if args.hyperparams else None,
+                         into_package=args.into_package, progress=not args.no_progress)
+    result = train(config)
+    _status(f"deint: trained {result.timesteps} steps in {result.seconds:.0f} s -> {result.last}"
+            + (f" (best: {result.best})" if result.best else ""))
     return 0
 
 

@@ -10,6 +10,9 @@ import gymnasium as gym
 
 ENTRY = "deint_env.envs.deinterleave:DeinterleaveEnv"
 VECTOR_ENTRY = "deint_env.envs.vector:DeinterleaveVectorEnv"
+# The token-feature env for learned agents (any number of sources; `deint_env.features`); not in
+# `env_ids()`, which lists the raw envs.
+TOKENS_ID = "deint_env/DeinterleaveTokens-v0"
 
 # id suffix -> the paper scenario it plays
 PAPER_IDS = {
@@ -40,5 +43,8 @@ def register_envs() -> None:
             gym.register(id=env_id, entry_point=ENTRY, vector_entry_point=VECTOR_ENTRY, kwargs=kwargs)
 
     reg("deint_env/Deinterleave-v0")
+    if TOKENS_ID not in gym.registry:
+        gym.register(id=TOKENS_ID, entry_point="deint_env.envs.tokens:make_tokens_env",
+                     vector_entry_point="deint_env.envs.tokens:make_tokens_vector_env")
     for suffix, scenario in PAPER_IDS.items():
         reg(f"deint_env/{suffix}-v0", scenario=scenario)

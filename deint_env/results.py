@@ -43,7 +43,7 @@ class RecordKey:
     scenario: str
     scenario_hash: str
     seed: int
-    policy_version: int = 1
+    policy_version: int | str = 1
 
 
 # Fields every record has, with their JSON types; everything else is a metric (`EpisodeRecord.metrics`).
@@ -53,7 +53,7 @@ _IDENTITY: dict[str, tuple[type, ...]] = {
     "oracle": (bool,), "lag": (int, type(None)), "n_sources": (int,), "version": (str,), "applicable": (bool,),
 }
 _OPTIONAL: dict[str, tuple[type, ...]] = {
-    "policy_version": (int,), "submitted": (bool,), "reason": (str,), "fault": (str,),
+    "policy_version": (int, str), "submitted": (bool,), "reason": (str,), "fault": (str,),
 }
 
 
@@ -81,7 +81,7 @@ class EpisodeRecord:
     n_sources: int
     version: str  # the package version that played it
     applicable: bool = True
-    policy_version: int = 1
+    policy_version: int | str = 1  # the registry's version, or a learned agent's checkpoint hash
     submitted: bool = False
     reason: str | None = None
     fault: str | None = None

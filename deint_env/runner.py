@@ -41,7 +41,7 @@ from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import correct_anchored, correct_link
 from deint_env.metrics import estimation_metrics, matched_labels, normalised_score
-from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec, policy_info
+from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec, spec_version
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records, results_lock
 from deint_env.scenario import ScenarioSpec
@@ -131,7 +131,7 @@ class Job:
     suite_hash: str | None = None
     tags: tuple[str, ...] = ()
     settings: dict[str, Any] = field(default_factory=dict)
-    policy_version: int = 1
+    policy_version: int | str = 1
 
     @property
     def key(self) -> RecordKey:
@@ -157,8 +157,8 @@ def make_jobs(policies: Iterable[str], target: str, split: str = "test", max_see
     canon = []
     for p in policies:
         name, kwargs = parse_policy_spec(p)
-        make_policy(p)  # fail now, with one line, on an unknown policy or parameter
-        canon.append((canonical_spec(name, kwargs), policy_info(name).version))
+        policy = make_policy(p)  # fail now, with one line, on an unknown policy or parameter
+        canon.append((canonical_spec(name, kwargs), spec_version(p, policy)))
     jobs = []
     for suite, suite_hash, entry in resolve_target(target):
         seeds = list(entry.test if split == "test" else entry.train)

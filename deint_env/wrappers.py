@@ -2,7 +2,7 @@
 
 `FeatureTracker` turns the raw pulse stream plus the labels the agent has given so far into one flat
 feature vector per decision.  `PulseFeatures` runs it inside an env (it sees the agent's actions);
-a policy outside any env (e.g. `agents.ppo.PPOPolicy`) runs the same tracker from (obs, priors), so
+a policy outside any env (e.g. `agents.policy.AgentPolicy`) runs the same tracker from (obs, priors), so
 an agent sees identical features in training and in evaluation.  `SplitSeeds` makes an env play only
 a suite's train (or test) seeds.
 
@@ -32,6 +32,10 @@ valid = 0.  Look-ahead pulses are not (yet) featured.
 
 Anchored mode only: the features are measured in units of the prior periods.  Blind scenarios have
 no priors and raise `DeintError`.
+
+`TrackTokens` / `TrackTokensVector` (end of this module) give the newer token features of
+`deint_env.features` (layout 2): any number of sources up to a declared maximum, action masks,
+look-ahead pulses, blind scenarios, computed in numpy for a whole vector env at once.
 """
 
 from __future__ import annotations
@@ -222,3 +226,91 @@ class SplitSeeds(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._draw = np.random.default_rng(seed)
         episode_seed = self.seeds[int(self._draw.integers(len(self.seeds)))]
         return self.env.reset(seed=episode_seed, options=options)
+
+
+# ---- token features (layout 2, `deint_env.features`): any number of sources, blind too -------------
+class TrackTokens(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Raw observations -> the per-track token observation of `deint_env.features` (a Dict of
+    `tracks` (M, F), `mask` (M,) and `pulse` (G,), or with `flat=True` one Box), for anchored and blind
+    scenarios with up to `max_tracks` labels.  The action space is `Discrete(max_tracks + 1)` (label
+    max_tracks = spurious); `action_masks()` marks the labels this scenario has.  The env's lag is the
+    number of look-ahead pulses featured."""
+
+    def __init__(self, env: gym.Env, max_tracks: int = 8, flat: bool = False):
+        gym.utils.RecordConstructorArgs.__init__(self, max_tracks=max_tracks, flat=flat)
+        gym.Wrapper.__init__(self, env)
+        from deint_env.features import TrackFeatures, TrackLayout
+
+        base = env.unwrapped
+        self.layout = TrackLayout(max_tracks=max_tracks, lookahead=base.lag, flat=flat)
+        self.layout.check_fits(base.n_labels, base.lag)
+        self.features = TrackFeatures(1, self.layout)
+        self.observation_space = self.layout.observation_space()
+        self.action_space = spaces.Discrete(self.layout.n_actions)
+        self._spurious = base.n_labels
+
+    def _observe(self, obs: dict[str, Any]):
+        self.features.observe(obs["toa"], obs["amplitude"], obs["valid"])
+        out = self.features.observation()
+        return out[0] if isinstance(out, np.ndarray) else {k: v[0] for k, v in out.items()}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.features.reset_rows([0], [Priors.from_info(info["priors"])], [info["has_amplitude"]])
+        return self._observe(obs), info
+
+    def step(self, action):
+        label = int(self.features.env_actions(np.array([action]), self._spurious)[0])
+        obs, reward, terminated, truncated, info = self.env.step(label)
+        self.features.label(np.array([action]))
+        return self._observe(obs), reward, terminated, truncated, info
+
+    def action_masks(self) -> np.ndarray:
+        return self.features.action_masks()[0]
+
+
+class TrackTokensVector(gym.vector.VectorWrapper):
+    """`TrackTokens` for a whole native vector env (`DeinterleaveVectorEnv` or the multi-scenario
+    `MixedScenarioVectorEnv`), the features of all sub-envs computed together in numpy.  Step for
+    step it matches `num_envs` single `TrackTokens` envs.  `action_masks()` is (num_envs, M + 1)."""
+
+    def __init__(self, env: gym.vector.VectorEnv, max_tracks: int = 8, flat: bool = False):
+        super().__init__(env)
+        from gymnasium.vector.utils import batch_space
+
+        from deint_env.features import TrackFeatures, TrackLayout
+
+        base = env.unwrapped
+        self.layout = TrackLayout(max_tracks=max_tracks, lookahead=base.lag, flat=flat)
+        self.layout.check_fits(base.n_labels, base.lag)
+        self.features = TrackFeatures(self.num_envs, self.layout)
+        self.single_observation_space = self.layout.observation_space()
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.single_action_space = spaces.Discrete(self.layout.n_actions)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._spurious = base.n_labels
+
+    def _restart(self, rows: np.ndarray) -> None:
+        episodes = [self.env.unwrapped.episodes[i] for i in rows.tolist()]
+        self.features.reset_rows(rows, [ep.priors for ep in episodes], [ep.amplitude is not None for ep in episodes])
+
+    def _observe(self, obs: dict[str, np.ndarray]):
+        self.features.observe(obs["toa"][:, 0], obs["amplitude"][:, 0], obs["valid"])
+        return self.features.observation()
+
+    def reset(self, *, seed=None, options=None):
+        obs, infos = self.env.reset(seed=seed, options=options)
+        self._restart(np.arange(self.num_envs))
+        return self._observe(obs), infos
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        obs, reward, terminated, truncated, infos = self.env.step(self.features.env_actions(actions, self._spurious))
+        self.features.label(actions)
+        started = infos.get("_n_pulses")  # the sub-envs that began a new episode on this step
+        if started is not None and started.any():
+            self._restart(np.flatnonzero(started))
+        return self._observe(obs), reward, terminated, truncated, infos
+
+    def action_masks(self) -> np.ndarray:
+        return self.features.action_masks()

@@ -1,8 +1,7 @@
-"""The learned `ppo` agent: registry, the committed checkpoint's accuracy, refusals, a smoke training."""
+"""The checked-in `ppo` agent: registry, its accuracy on test seeds, refusals, reproducible sampling."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 
@@ -11,32 +10,35 @@ import pytest
 
 pytest.importorskip("stable_baselines3")  # the [rl] extra
 
-from agents.ppo import CHECKPOINT, PPOPolicy, main, sidecar_path, train  # noqa: E402
+from agents.checkpoint import read_meta  # noqa: E402
+from agents.policy import PPO_CHECKPOINT, AgentPolicy, ppo  # noqa: E402
 from deint_env.errors import DeintError  # noqa: E402
 from deint_env.policies import list_policies, make_policy  # noqa: E402
 from deint_env.runner import evaluate, play  # noqa: E402
 from deint_env.simulate import simulate  # noqa: E402
-from deint_env.suites import find_entry  # noqa: E402
+from deint_env.suites import find_entry, load_suite  # noqa: E402
 
-META = json.loads(sidecar_path(CHECKPOINT).read_text())
+META = read_meta(PPO_CHECKPOINT)
+SCENARIO = META.scenarios[0]
 
 
 def test_registering_agents_imports_no_torch():
     code = ("import sys, deint_env; from deint_env.policies import policy_info; policy_info('ppo'); "
-            "assert not {'torch', 'stable_baselines3'} & set(sys.modules)")
+            "policy_info('agent'); assert not {'torch', 'stable_baselines3'} & set(sys.modules)")
     subprocess.run([sys.executable, "-c", code], check=True)
-    assert "ppo" in {p.name for p in list_policies()}
+    assert {"ppo", "agent"} <= {p.name for p in list_policies()}
 
 
 def test_checkpoint_matches_its_scenario():
-    entry = find_entry(META["scenario"])
-    assert META["scenario_hash"] == entry.spec.content_hash  # retrain when the scenario changes
-    assert META["n_labels"] == entry.spec.n_labels == 2
-    assert CHECKPOINT.stat().st_size < 1_000_000
+    entry = find_entry(SCENARIO)
+    assert META.notes["scenario_hash"] == entry.spec.content_hash  # retrain when the scenario changes
+    assert META.suite_hashes == {"core-v0": load_suite("core-v0").content_hash}
+    assert META.features == {"layout": "pulse", "n_labels": 2, "version": 1}
+    assert PPO_CHECKPOINT.suffix == ".safetensors" and PPO_CHECKPOINT.stat().st_size < 1_000_000
 
 
 def test_ppo_beats_random_and_nearest_prior_on_test_seeds():
-    records = evaluate(["ppo", "nearest-prior"], META["scenario"], split="test", max_seeds=3, progress=False)
+    records = evaluate(["ppo", "nearest-prior"], SCENARIO, split="test", max_seeds=3, progress=False)
     acc = {p: np.mean([r.get("accuracy") for r in records if r.policy == p]) for p in ("ppo", "nearest-prior")}
     random_acc = np.mean([r.get("random_accuracy") for r in records])
     genie_acc = np.mean([r.get("genie_accuracy") for r in records])
@@ -44,6 +46,13 @@ def test_ppo_beats_random_and_nearest_prior_on_test_seeds():
     assert acc["ppo"] > random_acc + 0.5
     assert acc["ppo"] > acc["nearest-prior"] + 0.2
     assert acc["ppo"] > genie_acc - 0.05
+
+
+def test_ppo_is_the_agent_policy_on_the_shipped_checkpoint():
+    episode = simulate(find_entry(SCENARIO).spec, 1_000_001)
+    a = play(make_policy("ppo"), episode, clustering=False).labels
+    b = play(make_policy(f"agent:checkpoint={PPO_CHECKPOINT}"), episode, clustering=False).labels
+    assert np.array_equal(a, b)
 
 
 def test_ppo_refuses_other_track_counts_and_blind_scenarios():
@@ -58,27 +67,11 @@ def test_ppo_refuses_other_track_counts_and_blind_scenarios():
 
 def test_missing_checkpoint_is_one_clear_error(tmp_path):
     with pytest.raises(DeintError, match="does not exist"):
-        PPOPolicy(checkpoint=str(tmp_path / "nothing.zip"))
+        AgentPolicy(checkpoint=str(tmp_path / "nothing.safetensors"))
 
 
 def test_stochastic_ppo_is_reproducible_per_seed():
-    episode = simulate(find_entry(META["scenario"]).spec, 1_000_000)
-    a = play(PPOPolicy(deterministic=False), episode, policy_seed=4, clustering=False).labels
-    b = play(PPOPolicy(deterministic=False), episode, policy_seed=4, clustering=False).labels
+    episode = simulate(find_entry(SCENARIO).spec, 1_000_000)
+    a = play(ppo(deterministic=False), episode, policy_seed=4, clustering=False).labels
+    b = play(ppo(deterministic=False), episode, policy_seed=4, clustering=False).labels
     assert np.array_equal(a, b)
-
-
-def test_evaluate_command_prints_the_table(capsys):
-    assert main(["evaluate", "--max-seeds", "1"]) == 0
-    out = capsys.readouterr().out
-    assert all(name in out for name in ("ppo", "random", "genie", "nearest-prior"))
-
-
-@pytest.mark.slow
-def test_smoke_training_writes_a_usable_checkpoint(tmp_path):
-    out = train(META["scenario"], total_timesteps=2048, seed=1, out=tmp_path / "smoke.zip")
-    meta = json.loads(sidecar_path(out).read_text())
-    assert meta["timesteps"] >= 2048 and meta["scenario"] == META["scenario"] and meta["seed"] == 1
-    episode = simulate(find_entry(META["scenario"]).spec, 5)
-    labels = play(PPOPolicy(checkpoint=str(out)), episode, clustering=False).labels
-    assert labels.shape == (len(episode),) and labels.min() >= 0 and labels.max() <= 2

@@ -53,16 +53,20 @@ class DeinterleaveVectorEnv(VectorEnv):
     that reset.  `episodes[i]` is the episode sub-env i is playing.
 
     ## Episode End
-    Sub-env i terminates after n_pulses + D steps.  Autoreset mode NEXT_STEP: on its next step the
-    action is ignored, it starts a new episode and returns that episode's first observation with
-    reward 0 and `terminated=False`.  Never truncates.  On a terminating step the info holds
+    Sub-env i terminates after n_pulses + D steps.  Autoreset mode NEXT_STEP (the default): on its
+    next step the action is ignored, it starts a new episode and returns that episode's first
+    observation with reward 0 and `terminated=False`.  `autoreset_mode=AutoresetMode.SAME_STEP` (as
+    stable-baselines3 expects) starts the new episode on the terminating step itself: that step
+    returns the new episode's first observation, with the finished one's last observation in
+    `final_obs` (mask `_final_obs`).  Never truncates.  On a terminating step the info holds
     `episode_accuracy` (float64, NaN for sub-envs still running) and its mask `_episode_accuracy`;
     until the next `step()`, `metrics(i)` gives the finished episode's full `label_metrics`.
 
     ## Arguments
     `num_envs`: number of sub-envs.  `scenario`, `lag`, `clustering_metrics`, `split`: as the single
     env (`clustering_metrics` only affects `metrics(i)`; with `split`, every sub-env's seed s + i must
-    be a seed of that split, and unseeded episodes are drawn from it).  `render_mode`: None, "ansi" or "rgb_array"
+    be a seed of that split, and unseeded episodes are drawn from it).  `autoreset_mode`: NEXT_STEP or
+    SAME_STEP.  `render_mode`: None, "ansi" or "rgb_array"
     (`render()` returns a tuple with one frame per sub-env).
 
     ## Version History
@@ -73,7 +77,15 @@ class DeinterleaveVectorEnv(VectorEnv):
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, scenario: ScenarioSpec | str | dict = DEFAULT_SCENARIO, lag: int = 0,
-                 render_mode: str | None = None, clustering_metrics: bool = True, split: str | None = None):
+                 render_mode: str | None = None, clustering_metrics: bool = True, split: str | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP):
+        try:
+            mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise DeintError(f"autoreset_mode={autoreset_mode!r} is invalid: NextStep or SameStep") from None
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise DeintError(f"autoreset_mode={autoreset_mode!r} is invalid: NextStep or SameStep")
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise DeintError(f"num_envs={num_envs!r} is invalid: an integer >= 1")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -292,7 +304,15 @@ class DeinterleaveVectorEnv(VectorEnv):
         if self._any_done:
             infos["episode_accuracy"] = np.where(terminated, self._score / self._n, math.nan)
             infos["_episode_accuracy"] = terminated.copy()
-        self._prev_done = terminated.copy()  # the caller may write to the returned array
+            if self.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP:
+                final = self._observation()
+                infos["final_obs"] = np.array([{key: v[i] for key, v in final.items()} if t else None
+                                               for i, t in enumerate(terminated.tolist())], dtype=object)
+                infos["_final_obs"] = terminated.copy()
+                restart = terminated.nonzero()[0].tolist()
+                self._start(restart, [None] * len(restart), infos)
+                self._any_done = False
+        self._prev_done = terminated.copy() if self._any_done else np.zeros(self.num_envs, bool)
         return self._observation(), reward, terminated, np.zeros(self.num_envs, bool), infos
 
     def _observation(self) -> dict[str, np.ndarray]:

@@ -21,7 +21,7 @@ from deint_env import metrics, stats
 from deint_env.aggregate import aggregate_entry
 from deint_env.errors import DeintError
 from deint_env import policies
-from deint_env.policies import parse_policy_spec, policy_info
+from deint_env.policies import spec_version
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
 from deint_env.runner import evaluate
 from deint_env.suites import TAGS, SuiteEntry, list_suites, load_suite
@@ -178,25 +178,29 @@ def _groups(entries: list[SuiteEntry]) -> tuple[dict[str, list[str]], list[str]]
     return groups, tags
 
 
-def current_version(rec: EpisodeRecord) -> int | None:
-    """The registry's version of the record's policy (None: a submission, or not registered here)."""
-    if rec.submitted:
-        return None
-    try:
-        return policy_info(parse_policy_spec(rec.policy)[0]).version
-    except DeintError:
-        return None
+def current_versions(records: list[EpisodeRecord]) -> dict[str, int | str | None]:
+    """Each played policy spec's current version (`policies.spec_version`: the registry's, or a learned
+    agent's checkpoint hash); None for a submission or a policy not registered here."""
+    out: dict[str, int | str | None] = {}
+    for r in records:
+        if r.policy not in out:
+            try:
+                out[r.policy] = None if r.submitted else spec_version(r.policy)
+            except DeintError:
+                out[r.policy] = None
+    return out
 
 
 def without_superseded(records: list[EpisodeRecord]) -> list[EpisodeRecord]:
     """Drop the stale records (another version of their policy) whose episode has been replayed at the
-    registry's version; a stale record not yet replayed stays, and is counted as stale."""
+    current version; a stale record not yet replayed stays, and is counted as stale."""
+    current = current_versions(records)
+
     def episode(r: EpisodeRecord) -> tuple:
         return r.policy, r.scenario, r.scenario_hash, r.seed
 
-    replayed = {episode(r) for r in records if r.policy_version == current_version(r)}
-    return [r for r in records
-            if current_version(r) in (None, r.policy_version) or episode(r) not in replayed]
+    replayed = {episode(r) for r in records if r.policy_version == current[r.policy]}
+    return [r for r in records if current[r.policy] in (None, r.policy_version) or episode(r) not in replayed]
 
 
 def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
@@ -210,11 +214,12 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
     expected = {(e.name, e.spec.content_hash, s) for e, s in scope.episodes()}
     by_policy: dict[str, dict[tuple, EpisodeRecord]] = {}
     stale: dict[str, int] = {}
+    current = current_versions(records)
     for r in records:
         key = (r.scenario, r.scenario_hash, r.seed)
         if key not in expected:
             continue
-        version = current_version(r)
+        version = current[r.policy]
         if version is not None and r.policy_version != version:
             stale[r.policy] = stale.get(r.policy, 0) + 1
             continue

@@ -1,0 +1,36 @@
+"""What `deint train` is asked (`TrainConfig`, documented in agents.train) and what it returns
+(`TrainResult`): kept apart from the trainers so each algorithm's module can import them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    out: Path
+    algo: str = "maskable-ppo"
+    suite: str | None = None
+    scenarios: tuple[str, ...] = ()
+    tags: tuple[str, ...] = ()
+    lag: int = 0
+    n_envs: int | None = None  # None: the YAML's
+    timesteps: int | None = None  # None: the YAML's n_timesteps
+    time_budget: float | None = None  # seconds of training, checked every rollout
+    seed: int = 0
+    eval_every: int = 50_000
+    eval_episodes: int = 32
+    hyperparams_file: Path | None = None
+    into_package: bool = False
+    progress: bool = True
+
+
+@dataclass
+class TrainResult:
+    last: Path
+    best: Path | None
+    timesteps: int
+    seconds: float
+    evaluations: list[dict[str, Any]] = field(default_factory=list)

@@ -1,0 +1,164 @@
+"""DAgger (Ross, Gordon & Bagnell 2011) from the simulator's truth, for the track network (torch directly).
+
+The expert is the truth itself: the right label of the pulse being described (its source's prior
+track, or spurious), which is what the genie's labelling reaches whenever the schedule is
+unambiguous.  Iteration i rolls the batched token env out with the expert's action with probability
+beta_i = beta_decay^i and the learner's greedy action otherwise, so the learner sees the states its
+own mistakes lead to (its features depend on its past labels); every described pulse is stored with
+the expert's label, and the network is fitted by cross-entropy on the aggregate (capped at `buffer`
+samples, oldest dropped).  In blind mode the right label depends on the learner's own track naming:
+the expert continues the track holding the pulse's true predecessor, or opens an unused one.  Checkpoints are the same single-file format as the RL agents
+(architecture `track-net`), so `agent:checkpoint=PATH` plays them and PPO can fine-tune them.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+
+from agents.checkpoint import load_checkpoint
+from agents.config import TrainConfig, TrainResult
+from agents.networks import TrackPolicy, action_scores, architecture_of, load_weights
+from deint_env.envs.tokens import make_tokens_vector_env
+from deint_env.errors import DeintError
+from deint_env.features import TrackLayout
+from deint_env.labels import SPURIOUS_PRED
+
+@dataclass(frozen=True)
+class DaggerParams:
+    n_envs: int = 32
+    rollout_steps: int = 1000  # env steps per iteration (x n_envs samples)
+    epochs: int = 2
+    batch_size: int = 512
+    learning_rate: float = 1e-3
+    beta_decay: float = 0.5
+    buffer: int = 400_000
+    policy_kwargs: dict | None = None
+
+    @classmethod
+    def from_yaml(cls, entry: dict[str, Any]) -> DaggerParams:
+        known = set(cls.__dataclass_fields__) | {"n_timesteps", "max_tracks"}
+        unknown = sorted(set(entry) - known)
+        if unknown:
+            raise DeintError(f"dagger hyper-parameter {unknown[0]!r} is unknown; known: {', '.join(sorted(known))}")
+        return cls(**{k: v for k, v in entry.items() if k in cls.__dataclass_fields__})
+
+
+def expert_actions(env, max_tracks: int) -> np.ndarray:
+    """The truth's label (track index, or max_tracks = spurious) of each sub-env's described pulse.
+
+    Anchored: the pulse's source.  Blind (link rewards): the track the learner gave the pulse's true
+    predecessor, or for a source's first pulse a track the learner has not used yet (its link is
+    "none"), so the expert continues the learner's own track naming.
+    """
+    feats, base = env.features, env.env.unwrapped
+    out = np.full(env.num_envs, max_tracks, np.int64)
+    for i in np.flatnonzero(feats.ready).tolist():
+        j = int(feats.labelled[i])
+        if not base.blind:
+            s = int(base.episodes[i].source[j])
+            out[i] = s if s >= 0 else max_tracks
+            continue
+        pred = int(base._pred[i, j])
+        if pred == SPURIOUS_PRED:
+            continue
+        track = int(base._labels[i, pred]) if pred >= 0 else -1
+        if not 0 <= track < feats.n_labels[i] or base._last[i, track] != pred:
+            free = np.flatnonzero(feats.exists[i] & (feats.count[i] == 0))
+            # No free track left: reuse the one idle longest (its link is lost either way).
+            track = int(free[0]) if free.size else int(np.nanargmin(np.where(feats.exists[i], feats.anchor[i], np.inf)))
+        out[i] = track
+    return out
+
+
+def _logits(policy: TrackPolicy, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    features = policy.extract_features(obs, policy.pi_features_extractor)
+    return policy.mlp_extractor.forward_actor(features)
+
+
+def dagger(config: TrainConfig, run) -> TrainResult:
+    """Run DAgger as `deint train --algo dagger` does (`run` is agents.train's `_Run`)."""
+    params = DaggerParams.from_yaml({**run.algo_kwargs, "policy_kwargs": run.policy_kwargs, "n_envs": run.n_envs})
+    torch.manual_seed(config.seed)
+    layout = TrackLayout(max_tracks=run.max_tracks, lookahead=config.lag)
+    policy = TrackPolicy(layout.observation_space(), spaces.Discrete(layout.n_actions), lambda _: params.learning_rate,
+                         **(params.policy_kwargs or {}))
+    optimizer = torch.optim.Adam(policy.parameters(), lr=params.learning_rate)
+    last = run.out / "last.safetensors"
+    done, iteration = 0, 0
+    if last.is_file():
+        ck = load_checkpoint(last)
+        if ck.meta.algorithm != "dagger" or ck.meta.architecture != architecture_of(policy):
+            raise DeintError(f"{last} holds a {ck.meta.algorithm} agent; this run trains another: choose another "
+                             "output directory")
+        load_weights(policy, ck.tensors, f"checkpoint {last}")
+        done, iteration = ck.meta.timesteps, int(ck.meta.notes.get("iteration", 0))
+        run.seconds_before = float(ck.meta.notes.get("train_seconds", 0.0))
+        best = ck.meta.notes.get("best_validation_accuracy")
+        run.best_score = -np.inf if best is None else float(best)
+    env = make_tokens_vector_env(params.n_envs, **run.env_kwargs)
+    env.reset(seed=config.seed + iteration)
+    rng = np.random.default_rng([config.seed, iteration])
+    keys = ("tracks", "mask", "pulse")
+    buf: dict[str, list[np.ndarray]] = {k: [] for k in (*keys, "action")}
+    stored = 0
+    next_eval = done + config.eval_every
+
+    class _Model:  # what run.checkpoint / run.meta read
+        def __init__(self):
+            self.policy, self.num_timesteps = policy, done
+
+    model = _Model()
+    obs = env.features.observation()
+    while done < run.timesteps and (config.time_budget is None
+                                    or time.perf_counter() - run.t0 < config.time_budget):
+        beta = params.beta_decay ** iteration
+        policy.eval()
+        for _ in range(params.rollout_steps):
+            ready = env.features.ready
+            expert = expert_actions(env, layout.max_tracks)
+            if beta < 1.0:
+                greedy = np.where(env.action_masks(), action_scores(policy, obs).numpy(), -np.inf).argmax(1)
+                act = np.where(rng.random(env.num_envs) < beta, expert, greedy)
+            else:
+                act = expert
+            if ready.any():
+                for k in keys:
+                    buf[k].append(obs[k][ready])
+                buf["action"].append(expert[ready])
+                stored += int(ready.sum())
+            obs, *_ = env.step(act)
+            done += env.num_envs
+        while stored > params.buffer and len(buf["action"]) > 1:  # drop the oldest rollout steps
+            stored -= len(buf["action"][0])
+            for k in buf:
+                buf[k].pop(0)
+        data = {k: torch.as_tensor(np.concatenate(buf[k])) for k in buf}
+        policy.train()
+        n = len(data["action"])
+        for _ in range(params.epochs):
+            order = torch.as_tensor(rng.permutation(n))
+            for b in range(0, n, params.batch_size):
+                idx = order[b:b + params.batch_size]
+                logits = _logits(policy, {k: data[k][idx] for k in keys})
+                loss = torch.nn.functional.cross_entropy(logits, data["action"][idx])
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+        iteration += 1
+        model.num_timesteps = done
+        run.iteration = iteration
+        if done >= next_eval or done >= run.timesteps:
+            next_eval = done + config.eval_every
+            run.checkpoint(model)
+    if not run.evaluations or run.evaluations[-1]["timesteps"] != done:
+        run.checkpoint(model)
+    best = run.out / "best.safetensors"
+    return TrainResult(last, best if best.is_file() else None, done,
+                       run.seconds_before + time.perf_counter() - run.t0, run.evaluations)
+

@@ -1,0 +1,261 @@
+"""Policy networks and their rebuilding from a checkpoint's JSON (no pickles anywhere).
+
+`TrackPolicy` / `MaskableTrackPolicy` / `TrackDQNPolicy` are stable-baselines3 policy classes for the
+token observation of `deint_env.features`: one shared scorer per track token (so the network is
+permutation-equivariant over tracks and plays any number of them up to the layout's maximum), a
+spurious score and a value from a masked pooling over the tracks, and optionally one self-attention
+layer across the tracks (a track's score can then depend on the others: "this pulse fits track 2
+only because track 5's prediction is far").  Absent tracks get a logit of -1e8, so even plain PPO or
+DQN never picks them; MaskablePPO's masks agree.
+
+`build_policy(meta)` rebuilds the SB3 policy module a checkpoint describes (architecture name and
+keyword arguments from an allow-list, spaces from the feature layout), and `load_weights` fills it
+from the checkpoint's tensors, checking every name and shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium import spaces
+from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+from stable_baselines3.dqn.policies import DQNPolicy
+from torch import nn
+
+from deint_env.errors import DeintError
+from deint_env.features import TrackLayout
+from deint_env.wrappers import FEATURE_VERSION, feature_space
+
+MASKED = -1e8  # the logit of an absent track
+
+
+# ---- feature layouts a checkpoint can name ---------------------------------------------------------
+@dataclass(frozen=True)
+class PulseLayout:
+    """Layout 1 (`deint_env.wrappers.PulseFeatures`): a flat vector for exactly `n_labels` tracks."""
+
+    n_labels: int
+    version: int = FEATURE_VERSION
+    lookahead: int = 0
+
+    def observation_space(self) -> spaces.Box:
+        return feature_space(self.n_labels)
+
+    @property
+    def n_actions(self) -> int:
+        return self.n_labels + 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"layout": "pulse", "n_labels": self.n_labels, "version": self.version}
+
+
+def layout_from_dict(d: dict[str, Any]) -> TrackLayout | PulseLayout:
+    if d.get("layout") == "pulse":
+        if d.get("version") != FEATURE_VERSION:
+            raise DeintError(f"pulse feature layout version {d.get('version')!r}; this deint_env computes "
+                             f"{FEATURE_VERSION}: retrain the agent")
+        n = d.get("n_labels")
+        if not isinstance(n, int) or not 1 <= n <= 256:
+            raise DeintError(f"pulse feature layout n_labels={n!r} is invalid")
+        return PulseLayout(n)
+    return TrackLayout.from_dict(d)
+
+
+# ---- the track network ------------------------------------------------------------------------------
+class TrackExtractor(BaseFeaturesExtractor):
+    """Token observation -> [track logits (M), spurious logit, value latent (d_model)]."""
+
+    def __init__(self, observation_space: spaces.Dict, d_model: int = 64, attention: bool = True, heads: int = 4):
+        m, f = observation_space["tracks"].shape
+        g = observation_space["pulse"].shape[0]
+        super().__init__(observation_space, features_dim=m + 1 + d_model)
+        self.max_tracks = m
+        self.embed = nn.Sequential(nn.Linear(f + g, d_model), nn.ReLU(), nn.Linear(d_model, d_model), nn.ReLU())
+        self.attention = nn.MultiheadAttention(d_model, heads, batch_first=True) if attention else None
+        self.norm = nn.LayerNorm(d_model) if attention else None
+        self.score = nn.Sequential(nn.Linear(d_model, d_model), nn.ReLU(), nn.Linear(d_model, 1))
+        self.pool = nn.Sequential(nn.Linear(2 * d_model + g, d_model), nn.ReLU())
+        self.spurious = nn.Linear(d_model, 1)
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        tokens, pulse = obs["tracks"], obs["pulse"]
+        mask = obs["mask"] > 0.5
+        h = self.embed(torch.cat([tokens, pulse[:, None, :].expand(-1, tokens.shape[1], -1)], dim=-1))
+        any_track = mask.any(dim=1, keepdim=True)
+        if self.attention is not None:
+            # A row without tracks (an all-zero terminal observation) attends to everything rather than NaN.
+            ignore = ~(mask | ~any_track)
+            a, _ = self.attention(h, h, h, key_padding_mask=ignore, need_weights=False)
+            h = self.norm(h + a)
+        scores = self.score(h).squeeze(-1).masked_fill(~mask, MASKED)
+        w = mask.unsqueeze(-1).to(h.dtype)
+        mean = (h * w).sum(1) / w.sum(1).clamp(min=1.0)
+        top = torch.where(any_track, (h + (w - 1.0) * 1e4).amax(1), torch.zeros_like(mean))
+        pooled = self.pool(torch.cat([mean, top, pulse], dim=-1))
+        return torch.cat([scores, self.spurious(pooled), pooled], dim=-1)
+
+
+class SplitLatent(nn.Module):
+    """The mlp_extractor of the track policies: the extractor already made the logits."""
+
+    def __init__(self, n_actions: int, latent_dim_vf: int):
+        super().__init__()
+        self.n_actions = n_actions
+        self.latent_dim_pi, self.latent_dim_vf = n_actions, latent_dim_vf
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(features), self.forward_critic(features)
+
+    def forward_actor(self, features: torch.Tensor) -> torch.Tensor:
+        return features[:, :self.n_actions]
+
+    def forward_critic(self, features: torch.Tensor) -> torch.Tensor:
+        return features[:, self.n_actions:]
+
+
+class _TrackActorCritic:
+    def __init__(self, observation_space, action_space, lr_schedule, d_model: int = 64, attention: bool = True,
+                 heads: int = 4, **kwargs):
+        kwargs["features_extractor_class"] = TrackExtractor
+        kwargs["features_extractor_kwargs"] = dict(d_model=d_model, attention=attention, heads=heads)
+        kwargs.setdefault("ortho_init", False)
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        n = int(self.action_space.n)
+        self.mlp_extractor = SplitLatent(n, self.features_dim - n)
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        self.action_net = nn.Identity()  # the logits come straight from the per-track scorer
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+
+class TrackPolicy(_TrackActorCritic, ActorCriticPolicy):
+    """The track network for PPO and A2C."""
+
+
+class MaskableTrackPolicy(_TrackActorCritic, MaskableActorCriticPolicy):
+    """The track network for sb3-contrib's MaskablePPO."""
+
+
+class _FirstColumns(nn.Module):
+    def __init__(self, n: int):
+        super().__init__()
+        self.n = n
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return features[:, :self.n]
+
+
+class TrackDQNPolicy(DQNPolicy):
+    """The track network for DQN: the per-track scores and the spurious score are the Q-values."""
+
+    def __init__(self, observation_space, action_space, lr_schedule, d_model: int = 64, attention: bool = True,
+                 heads: int = 4, **kwargs):
+        kwargs["features_extractor_class"] = TrackExtractor
+        kwargs["features_extractor_kwargs"] = dict(d_model=d_model, attention=attention, heads=heads)
+        kwargs.setdefault("net_arch", [])
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def make_q_net(self):
+        q = super().make_q_net()
+        q.q_net = _FirstColumns(int(self.action_space.n))
+        return q
+
+
+# ---- rebuilding from JSON ----------------------------------------------------------------------------
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+ARCHITECTURES = ("sb3-mlp", "track-net", "track-dqn")
+
+
+def _constant(_: float) -> float:
+    return 0.0
+
+
+def build_policy(architecture: dict[str, Any], features: dict[str, Any]) -> BasePolicy:
+    """The policy module an architecture JSON names, for the observation space of `features`."""
+    arch = dict(architecture)
+    name = arch.pop("name", None)
+    layout = layout_from_dict(features)
+    obs_space, act_space = layout.observation_space(), spaces.Discrete(layout.n_actions)
+    try:
+        if name == "sb3-mlp":
+            if isinstance(obs_space, spaces.Dict):
+                raise DeintError("architecture 'sb3-mlp' needs a flat feature layout")
+            act = arch.pop("activation", "tanh")
+            if act not in ACTIVATIONS:
+                raise DeintError(f"activation {act!r} is unknown; known: {', '.join(ACTIVATIONS)}")
+            net_arch = arch.pop("net_arch")
+            if arch:
+                raise TypeError(f"unexpected keys {sorted(arch)}")
+            return ActorCriticPolicy(obs_space, act_space, _constant, net_arch=list(net_arch),
+                                     activation_fn=ACTIVATIONS[act])
+        if name in ("track-net", "track-dqn"):
+            if not isinstance(obs_space, spaces.Dict):
+                raise DeintError(f"architecture {name!r} needs the token (non-flat) feature layout")
+            cls = TrackPolicy if name == "track-net" else TrackDQNPolicy
+            return cls(obs_space, act_space, _constant, **arch)
+    except (TypeError, KeyError, ValueError) as e:
+        if isinstance(e, DeintError):
+            raise
+        raise DeintError(f"architecture {name!r}: bad parameters ({e})") from None
+    raise DeintError(f"architecture {name!r} is unknown; known: {', '.join(ARCHITECTURES)}")
+
+
+def architecture_of(policy: BasePolicy) -> dict[str, Any]:
+    """The JSON that `build_policy` turns back into `policy`'s module."""
+    if isinstance(policy, (_TrackActorCritic, TrackDQNPolicy)):
+        fx = policy.q_net.features_extractor if isinstance(policy, TrackDQNPolicy) else policy.features_extractor
+        name = "track-dqn" if isinstance(policy, TrackDQNPolicy) else "track-net"
+        return {"name": name, "d_model": fx.pool[0].out_features, "attention": fx.attention is not None,
+                "heads": fx.attention.num_heads if fx.attention is not None else 4}
+    if type(policy) in (ActorCriticPolicy, MaskableActorCriticPolicy):
+        kw = policy._get_constructor_parameters()
+        act = next(k for k, v in ACTIVATIONS.items() if v is kw["activation_fn"])
+        net_arch = kw["net_arch"]
+        if isinstance(net_arch, dict):
+            if net_arch.get("pi") != net_arch.get("vf"):
+                raise DeintError("only MLPs with the same actor and critic layers are saved")
+            net_arch = net_arch["pi"]
+        return {"name": "sb3-mlp", "net_arch": list(net_arch), "activation": act}
+    raise DeintError(f"policy class {type(policy).__name__} has no checkpoint architecture")
+
+
+def weights_of(policy: nn.Module) -> dict[str, torch.Tensor]:
+    """Parameters and buffers, each shared tensor once (SB3 shares the features extractor)."""
+    return {**dict(policy.named_parameters()), **dict(policy.named_buffers())}
+
+
+def load_weights(policy: nn.Module, tensors: dict[str, torch.Tensor], where: str) -> None:
+    expected = weights_of(policy)
+    if set(tensors) != set(expected):
+        extra, missing = sorted(set(tensors) - set(expected)), sorted(set(expected) - set(tensors))
+        raise DeintError(f"{where}: its tensors do not match its architecture "
+                         f"({'unexpected ' + extra[0] if extra else 'missing ' + missing[0]})")
+    with torch.no_grad():
+        for name, target in expected.items():
+            t = tensors[name]
+            if t.shape != target.shape or t.dtype != target.dtype:
+                raise DeintError(f"{where}: tensor {name} is {tuple(t.shape)} {t.dtype}, the architecture needs "
+                                 f"{tuple(target.shape)} {target.dtype}")
+            target.copy_(t)
+    policy.eval()
+
+
+def action_scores(policy: BasePolicy, obs: dict[str, np.ndarray] | np.ndarray) -> torch.Tensor:
+    """Logits (actor-critic) or Q-values (DQN) of a batch of observations (float32, already in the
+    layout's range, so SB3's observation preprocessing is skipped: it costs more than the network
+    on a batch of one)."""
+    with torch.inference_mode():
+        x: Any = ({k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in obs.items()} if isinstance(obs, dict)
+                  else torch.from_numpy(np.ascontiguousarray(obs)))
+        if isinstance(policy, DQNPolicy):
+            return policy.q_net.q_net(policy.q_net.features_extractor(x))
+        features = policy.pi_features_extractor(x)
+        return policy.action_net(policy.mlp_extractor.forward_actor(features))

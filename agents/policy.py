@@ -1,0 +1,124 @@
+"""The `agent` policy: any deint checkpoint, evaluated from that one file (`agent:checkpoint=PATH`).
+
+The checkpoint's JSON names the architecture and the feature layout; the policy rebuilds the
+network (`agents.networks.build_policy`), fills it from the safetensors weights, and acts on the
+same features the agent trained on (the token layout 2 of `deint_env.features`, or the flat pulse
+layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  `version` is the checkpoint's
+content hash: records of a retrained checkpoint written to the same path never pass for the old one.
+`ppo` is this policy on the checked-in two-source checkpoint.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from agents.checkpoint import Checkpoint, load_checkpoint
+from agents.networks import PulseLayout, action_scores, build_policy, layout_from_dict, load_weights
+from deint_env.episode import Priors
+from deint_env.errors import DeintError, NotApplicable
+from deint_env.features import TrackFeatures
+from deint_env.policies import policy_rng
+from deint_env.wrappers import FeatureTracker
+
+CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
+PPO_CHECKPOINT = CHECKPOINT_DIR / "ppo-two-source.safetensors"
+
+
+@functools.lru_cache(maxsize=8)
+def _load(path: str, mtime_ns: int, size: int) -> tuple[Checkpoint, Any]:
+    """Checkpoint and rebuilt network, once per process and file version (the runner builds a policy
+    per episode); a file replaced on disk has another (mtime, size) and is read again."""
+    ck = load_checkpoint(path)
+    net = build_policy(ck.meta.architecture, ck.meta.features)
+    load_weights(net, ck.tensors, f"checkpoint {path}")
+    return ck, net
+
+
+def load_agent(checkpoint: str | os.PathLike) -> tuple[Checkpoint, Any]:
+    path = Path(checkpoint).resolve()
+    try:
+        st = path.stat()
+    except OSError:
+        raise DeintError(f"checkpoint {checkpoint} does not exist (train one with `deint train`)") from None
+    return _load(str(path), st.st_mtime_ns, st.st_size)
+
+
+def checkpoint_version(checkpoint: str | os.PathLike) -> str:
+    """The content key a results file should store for `agent:checkpoint=PATH` (see `Checkpoint.key`)."""
+    return load_agent(checkpoint)[0].key
+
+
+class AgentPolicy:
+    """A learned agent from a checkpoint (module doc).  `deterministic=False` samples its labels,
+    seeded per episode from the runner's policy seed."""
+
+    def __init__(self, checkpoint: str, deterministic: bool = True):
+        self.checkpoint = str(Path(checkpoint).resolve())
+        self.deterministic = bool(deterministic)
+        torch.set_num_threads(1)  # a batch of one observation: thread hand-offs cost more than they save
+        ck, self._net = load_agent(self.checkpoint)
+        self.meta, self.version = ck.meta, ck.key
+        self.layout = layout_from_dict(ck.meta.features)
+        self.lag = self.layout.lookahead
+        self._name = Path(self.checkpoint).name
+        self._rng: np.random.Generator | None = None
+        if isinstance(self.layout, PulseLayout):
+            self._tracker: FeatureTracker | None = FeatureTracker(self.layout.n_labels, lag=0)
+            self._tokens: TrackFeatures | None = None
+        else:
+            self._tracker, self._tokens = None, TrackFeatures(1, self.layout)
+
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        if isinstance(self.layout, PulseLayout):
+            if priors.blind:
+                raise NotApplicable(f"agent {self._name} uses the pulse features, which need anchored priors; "
+                                    "blind scenarios have none")
+            if priors.n_labels != self.layout.n_labels:
+                raise NotApplicable(f"agent {self._name} was trained for {self.layout.n_labels} tracks "
+                                    f"({', '.join(self.meta.scenarios)}); this scenario has {priors.n_labels}")
+            self._tracker.reset(priors)
+        else:
+            if priors.n_labels > self.layout.max_tracks:
+                raise NotApplicable(f"agent {self._name} holds at most {self.layout.max_tracks} tracks; this "
+                                    f"scenario has {priors.n_labels}")
+            self._tokens.reset_rows([0], [priors], [bool(info.get("has_amplitude", False))])
+            self._spurious = priors.n_labels
+        self._rng = None if self.deterministic else policy_rng(info, None)
+
+    def _choose(self, obs: Any, mask: np.ndarray | None) -> int:
+        scores = action_scores(self._net, obs)[0].numpy().astype(np.float64)
+        if mask is not None:
+            scores = np.where(mask, scores, -np.inf)
+        if self._rng is None:
+            return int(np.argmax(scores))
+        p = np.exp(scores - scores.max())
+        return int(self._rng.choice(len(p), p=p / p.sum()))
+
+    def act(self, obs: dict[str, Any]) -> int:
+        if self._tracker is not None:
+            tracker = self._tracker
+            tracker.observe(obs)
+            if not tracker.ready:
+                return 0
+            label = self._choose(tracker.features()[None, :], None)
+            tracker.label(label)
+            return label
+        tok = self._tokens
+        tok.observe(obs["toa"], obs["amplitude"], obs["valid"])
+        if not tok.ready[0]:
+            return 0  # labels nothing (a look-ahead step or a padding step)
+        action = self._choose(tok.observation(), tok.action_masks()[0])
+        tok.label(np.array([action]))
+        return int(tok.env_actions(np.array([action]), self._spurious)[0])
+
+
+def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:
+    """The checked-in PPO agent (two sources), or another checkpoint."""
+    return AgentPolicy(str(PPO_CHECKPOINT) if checkpoint is None else checkpoint, deterministic)
+

@@ -1,0 +1,257 @@
+"""Training learned agents (`deint train`): SB3 / sb3-contrib on the batched token features.
+
+    deint train --suite core-v0 --algo maskable-ppo --n-envs 16 --time-budget 1800 --out runs/train/core
+    deint train --scenario core-v0/core-n6-spread4-jitter0.05 --algo ppo --timesteps 200000
+    deint train --suite core-v0 --algo dagger --time-budget 900       # imitation of the truth (agents.imitation)
+
+Hyper-parameters come from rl-zoo-style YAML files, one per algorithm (`agents/hyperparams/ALGO.yml`),
+keyed by scenario (`suite/scenario`), then suite, then `default`; `--hyperparams FILE` names another
+file.  Training draws episodes from the train seeds minus the validation tail
+(`deint_env.envs.mixed.split_seeds`); every `eval_every` steps it writes `last.safetensors`, plays
+the validation seeds greedily and keeps the best as `best.safetensors` (both single-file, pickle-free
+checkpoints for `agent:checkpoint=PATH`), and appends the evaluation to `eval.jsonl`.  A rerun with
+the same output directory resumes from `last.safetensors` (its weights and step count; the optimiser
+moments and a DQN replay buffer start afresh).  The output directory may not lie inside the installed
+package unless `into_package=True` (`--into-package`).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecMonitor
+
+from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
+from agents.config import TrainConfig, TrainResult
+from agents.networks import (MaskableTrackPolicy, TrackDQNPolicy, TrackPolicy, action_scores, architecture_of,
+                             load_weights, weights_of)
+from agents.vec_env import TokenVecEnv
+from deint_env.envs.mixed import select_entries, split_seeds
+from deint_env.errors import DeintError
+from deint_env.suites import load_suite
+
+ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger")
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
+# Keys of a YAML entry that are not the algorithm's own keyword arguments (as in rl-zoo).
+RUN_KEYS = ("n_envs", "n_timesteps", "policy", "max_tracks")
+
+
+def _algo_class(algo: str):
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO, TrackPolicy
+    if algo == "a2c":
+        from stable_baselines3 import A2C
+        return A2C, TrackPolicy
+    if algo == "dqn":
+        from stable_baselines3 import DQN
+        return DQN, TrackDQNPolicy
+    if algo == "maskable-ppo":
+        from sb3_contrib import MaskablePPO
+        return MaskablePPO, MaskableTrackPolicy
+    raise DeintError(f"--algo {algo!r} is unknown; known: {', '.join(ALGOS)}")
+
+
+def load_hyperparams(algo: str, keys: list[str], path: Path | None = None) -> tuple[str, dict[str, Any]]:
+    """(the key used, its entry) from the algorithm's YAML: the first of `keys` present, else default."""
+    path = path or HYPERPARAMS_DIR / f"{algo}.yml"
+    if not path.is_file():
+        raise DeintError(f"hyper-parameter file {path} does not exist")
+    try:
+        table = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise DeintError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(table, dict):
+        raise DeintError(f"{path}: must map suite or scenario names to hyper-parameters")
+    for key in [*keys, "default"]:
+        if key in table:
+            entry = table[key]
+            if not isinstance(entry, dict):
+                raise DeintError(f"{path}: entry {key!r} must be a mapping")
+            return key, dict(entry)
+    raise DeintError(f"{path} has no entry for {', '.join(keys)} and no 'default'")
+
+
+def _check_out(out: Path, into_package: bool) -> Path:
+    out = out.resolve()
+    if not into_package and any(out == d or d in out.parents for d in PACKAGE_DIRS):
+        raise DeintError(f"output {out} lies inside the installed package; choose another directory "
+                         "or pass --into-package")
+    return out
+
+
+def _versions() -> dict[str, str]:
+    import gymnasium
+    import sb3_contrib
+    import stable_baselines3
+
+    from deint_env import __version__
+    return {"deint_bench": __version__, "stable_baselines3": stable_baselines3.__version__,
+            "sb3_contrib": sb3_contrib.__version__, "torch": torch.__version__, "gymnasium": gymnasium.__version__,
+            "numpy": np.__version__}
+
+
+def evaluate_greedy(policy, env_kwargs: dict[str, Any], episodes: int, seed: int = 0) -> float:
+    """Mean episode accuracy of `policy` (greedy, masked) over `episodes` validation episodes."""
+    n = min(episodes, 16)
+    env = TokenVecEnv.make(n, **{**env_kwargs, "split": "validation"})
+    env.seed(seed)
+    obs = env.reset()
+    scores: list[float] = []
+    while len(scores) < episodes:
+        q = action_scores(policy, obs).numpy()
+        actions = np.where(env.action_masks(), q, -np.inf).argmax(axis=1)
+        env.step_async(actions)
+        obs, _, dones, infos = env.step_wait()
+        scores += [infos[i]["episode_accuracy"] for i in np.flatnonzero(dones).tolist()]
+    env.close()
+    return float(np.mean(scores[:episodes]))
+
+
+class _Checkpointer(BaseCallback):
+    """Periodic save + validation, and the time budget."""
+
+    def __init__(self, run: _Run):
+        super().__init__()
+        self.run = run
+        self.next_eval = run.config.eval_every
+
+    def _on_training_start(self) -> None:
+        self.next_eval = self.num_timesteps + self.run.config.eval_every
+
+    def _on_step(self) -> bool:
+        run = self.run
+        if self.num_timesteps >= self.next_eval:
+            self.next_eval += run.config.eval_every
+            run.checkpoint(self.model)
+        budget = run.config.time_budget
+        return budget is None or time.perf_counter() - run.t0 < budget
+
+
+class _Run:
+    def __init__(self, config: TrainConfig):
+        self.config = config
+        self.out = _check_out(Path(config.out), config.into_package)
+        entries = select_entries(config.suite, config.scenarios, config.tags)
+        self.scenarios = [n for n, _ in entries]
+        suites = sorted({n.split("/")[0] for n in self.scenarios})
+        self.suite_hashes = {s: load_suite(s).content_hash for s in suites}
+        self.train_ranges = sorted({(r.start, r.stop) for _, e in entries for r in [split_seeds(e, "train")]})
+        self.max_labels = max(e.spec.n_labels for _, e in entries)
+        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
+        self.hp_key, hp = load_hyperparams(config.algo, keys, config.hyperparams_file)
+        self.n_envs = int(config.n_envs or hp.get("n_envs", 8))
+        self.timesteps = int(config.timesteps or float(hp.get("n_timesteps", 1e6)))
+        self.max_tracks = int(hp.get("max_tracks", 8))
+        if self.max_labels > self.max_tracks:
+            self.max_tracks = self.max_labels
+        self.policy_kwargs = dict(hp.get("policy_kwargs", {}))
+        self.algo_kwargs = {k: v for k, v in hp.items() if k not in RUN_KEYS and k != "policy_kwargs"}
+        self.env_kwargs = dict(suite=config.suite, scenarios=list(config.scenarios) or None,
+                               tags=list(config.tags) or None, lag=config.lag, max_tracks=self.max_tracks)
+        self.best_score = -np.inf
+        self.evaluations: list[dict[str, Any]] = []
+        self.t0 = time.perf_counter()
+        self.seconds_before = 0.0
+        self.iteration = 0  # DAgger's iteration count (agents.imitation)
+
+    def meta(self, model) -> CheckpointMeta:
+        from deint_env.features import TrackLayout
+
+        layout = TrackLayout(max_tracks=self.max_tracks, lookahead=self.config.lag)
+        hp = {**self.algo_kwargs, "policy_kwargs": self.policy_kwargs, "n_envs": self.n_envs,
+              "max_tracks": self.max_tracks, "hyperparams_key": self.hp_key}
+        return CheckpointMeta(
+            architecture=architecture_of(model.policy), features=layout.to_dict(), algorithm=self.config.algo,
+            scenarios=self.scenarios, suite_hashes=self.suite_hashes,
+            train_seeds=list(self.train_ranges[0]),
+            timesteps=int(model.num_timesteps), hyperparameters=json.loads(json.dumps(hp, default=str)),
+            versions=_versions(), seed=self.config.seed,
+            notes={"train_seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1),
+                   "iteration": self.iteration,
+                   "best_validation_accuracy": None if self.best_score == -np.inf else self.best_score,
+                   "train_seed_ranges": [list(r) for r in self.train_ranges]})
+
+    def checkpoint(self, model) -> None:
+        policy = model.policy
+        score = evaluate_greedy(policy, self.env_kwargs, self.config.eval_episodes, seed=self.config.seed)
+        record = {"timesteps": int(model.num_timesteps), "validation_accuracy": round(score, 4),
+                  "seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1)}
+        self.evaluations.append(record)
+        if score > self.best_score:
+            self.best_score = score
+            save_checkpoint(self.out / "best.safetensors", weights_of(policy), self.meta(model))
+        save_checkpoint(self.out / "last.safetensors", weights_of(policy), self.meta(model))
+        with open(self.out / "eval.jsonl", "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if self.config.progress:
+            print(f"  {record['timesteps']} steps: validation accuracy {score:.3f} ({record['seconds']} s)", flush=True)
+
+
+def train(config: TrainConfig) -> TrainResult:
+    if config.algo not in ALGOS:
+        raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
+    run = _Run(config)
+    run.out.mkdir(parents=True, exist_ok=True)
+    if config.algo == "dagger":
+        from agents.imitation import dagger
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return dagger(config, run)
+        finally:
+            torch.set_num_threads(threads)
+    algo_cls, policy_cls = _algo_class(config.algo)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small networks: thread hand-offs cost more than they save
+    tb = None
+    if importlib.util.find_spec("tensorboard") is not None:
+        tb = str(run.out / "tensorboard")
+    elif config.progress:
+        print("deint: tensorboard is not installed, so no TensorBoard logs (pip install tensorboard)", flush=True)
+    try:
+        venv = VecMonitor(TokenVecEnv.make(run.n_envs, **run.env_kwargs))
+        try:
+            model = algo_cls(policy_cls, venv, seed=config.seed, device="cpu", tensorboard_log=tb,
+                             policy_kwargs=run.policy_kwargs, **run.algo_kwargs)
+        except TypeError as e:
+            raise DeintError(f"hyper-parameters {run.hp_key!r} for {config.algo}: {e}") from None
+        last = run.out / "last.safetensors"
+        done = 0
+        if last.is_file():  # resume
+            ck = load_checkpoint(last)
+            if ck.meta.architecture != architecture_of(model.policy) or ck.meta.algorithm != config.algo:
+                raise DeintError(f"{last} holds a {ck.meta.algorithm} {ck.meta.architecture['name']} agent; "
+                                 "this run trains another: choose another output directory")
+            load_weights(model.policy, ck.tensors, f"checkpoint {last}")
+            model.policy.set_training_mode(True)
+            done = ck.meta.timesteps
+            run.seconds_before = float(ck.meta.notes.get("train_seconds", 0.0))
+            best = ck.meta.notes.get("best_validation_accuracy")
+            run.best_score = -np.inf if best is None else float(best)
+            model.num_timesteps = done
+            if config.progress:
+                print(f"deint: resuming {last} at {done} steps", flush=True)
+        remaining = run.timesteps - done
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, callback=_Checkpointer(run), reset_num_timesteps=False,
+                        progress_bar=config.progress, tb_log_name=config.algo)
+            if not run.evaluations or run.evaluations[-1]["timesteps"] != model.num_timesteps:
+                run.checkpoint(model)
+        venv.close()
+    finally:
+        torch.set_num_threads(threads)
+    best = run.out / "best.safetensors"
+    return TrainResult(last, best if best.is_file() else None, int(model.num_timesteps),
+                       run.seconds_before + time.perf_counter() - run.t0, run.evaluations)
+

@@ -1,0 +1,103 @@
+"""A native vector env that samples a scenario per episode: whole-suite training and curricula."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode
+
+from deint_env.envs.vector import DeinterleaveVectorEnv
+from deint_env.errors import DeintError
+from deint_env.simulate import simulate_many
+from deint_env.suites import SuiteEntry, find_entry, list_suites, load_suite
+
+SPLITS = ("train", "validation", "test")
+# The last seeds of every train range are held out of training for validation (early stopping, model
+# selection): "train" plays the rest of the train range, "validation" only those.
+VALIDATION_SEEDS = 1000
+
+
+def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = None,
+                   tags: Sequence[str] | None = None) -> list[tuple[str, SuiteEntry]]:
+    """(qualified name, entry) of every scenario of `suite` (or of the named `scenarios`) carrying
+    all `tags`; one line naming the problem when nothing is left."""
+    if suite is None and not scenarios:
+        raise DeintError("name a suite or some scenarios to sample from")
+    chosen: list[tuple[str, SuiteEntry]] = []
+    if suite is not None:
+        if suite not in list_suites():
+            raise DeintError(f"suite {suite!r} is unknown; known suites: {', '.join(list_suites())}")
+        chosen += [(f"{suite}/{e.name}", e) for e in load_suite(suite)]
+    for name in scenarios or ():
+        if "/" not in name:
+            raise DeintError(f"scenario {name!r}: name it as SUITE/SCENARIO")
+        chosen.append((name, find_entry(name)))
+    if tags:
+        chosen = [(n, e) for n, e in chosen if set(tags) <= set(e.tags)]
+    if not chosen:
+        raise DeintError(f"no scenario of {suite or list(scenarios or ())} has the tags {list(tags or ())}")
+    return chosen
+
+
+def split_seeds(entry: SuiteEntry, split: str) -> range:
+    """The episode seeds of `entry` in `split` (module constants)."""
+    if split == "test":
+        return range(entry.test.start, entry.test.stop)
+    hold = min(VALIDATION_SEEDS, len(entry.train) // 2)
+    cut = entry.train.stop - hold
+    return range(entry.train.start, cut) if split == "train" else range(cut, entry.train.stop)
+
+
+class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
+    """`DeinterleaveVectorEnv` whose sub-envs draw a scenario and a seed of its `split` per episode.
+
+    Scenarios come from `select_entries(suite, scenarios, tags)`, uniformly; episode seeds from the
+    scenario's `split` seed range only: "train" (its train range but the last `VALIDATION_SEEDS`),
+    "validation" (those last seeds) or "test" (never played by "train" or "validation").  The action space
+    is `Discrete(L + 1)` for the largest label count L among the scenarios; label L is spurious for
+    every episode, and a label beyond an episode's own tracks is simply wrong (the token features
+    mask them).  All scenarios must be anchored, or all blind.  `reset(seed=s)` seeds sub-env i's
+    sampler with s + i.  The reset and autoreset infos carry `scenario`, `episode_seed`, `n_labels`
+    and `n_pulses` per started sub-env; its priors are `episodes[i].priors`.
+    """
+
+    def __init__(self, num_envs: int = 1, suite: str | None = None, scenarios: Sequence[str] | None = None,
+                 tags: Sequence[str] | None = None, split: str = "train", lag: int = 0,
+                 clustering_metrics: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP):
+        if split not in SPLITS:
+            raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
+        self.entries = select_entries(suite, scenarios, tags)
+        blind = {e.spec.blind for _, e in self.entries}
+        if len(blind) > 1:
+            raise DeintError("the selected scenarios mix anchored and blind ones; train on one kind at a time")
+        self.split = split
+        widest = max((e for _, e in self.entries), key=lambda e: e.spec.n_labels)
+        super().__init__(num_envs, scenario=widest.spec, lag=lag, clustering_metrics=clustering_metrics,
+                         autoreset_mode=autoreset_mode)
+        self.scenario_names = [n for n, _ in self.entries]
+
+    def seed_range(self, entry: SuiteEntry) -> range:
+        return split_seeds(entry, self.split)
+
+    def _start(self, rows: list[int], seeds: list[int | None], infos: dict[str, Any]) -> None:
+        picks: list[tuple[int, int]] = []  # (entry index, episode seed) per row
+        for i, seed in zip(rows, seeds):
+            self.episodes[i] = None
+            if seed is not None or self._rngs[i] is None:
+                self._rngs[i], _ = seeding.np_random(seed)
+            rng = self._rngs[i]
+            e = int(rng.integers(len(self.entries)))
+            seed_range = self.seed_range(self.entries[e][1])
+            picks.append((e, seed_range[int(rng.integers(len(seed_range)))]))
+        episodes: list[Any] = [None] * len(rows)
+        for e in sorted({p[0] for p in picks}):  # one simulate_many call per scenario
+            at = [j for j, p in enumerate(picks) if p[0] == e]
+            for j, ep in zip(at, simulate_many(self.entries[e][1].spec, [picks[j][1] for j in at])):
+                episodes[j] = ep
+        self._load(rows, episodes)
+        self._add_infos(infos, {"scenario": [self.entries[e][0] for e, _ in picks],
+                                "episode_seed": [s for _, s in picks],
+                                "n_labels": [ep.n_labels for ep in episodes],
+                                "n_pulses": [len(ep) for ep in episodes]}, rows)

@@ -76,18 +76,41 @@ def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Cha
     return chains
 
 
-def group_chains(t: np.ndarray, chains: list[Chain]) -> list[list[int]]:
-    """Chains whose periods agree within 4 combined standard deviations (greedy, in found order)."""
+class Group(NamedTuple):
+    """Chains that are one train: a frame period F (a multiple of every chain's period) and the phase
+    of every sub-train of period F they hold (a chain of period F / n holds n)."""
+
+    chains: list[int]
+    frame: float
+    origins: np.ndarray
+
+
+def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
+    """Chains whose periods are (integer multiples of) one another within 4 combined standard
+    deviations are one train: the sub-trains of a stagger, or a constant train extracted in pieces at
+    multiples of its PRI.  Greedy, by increasing period."""
     fits = [line_fit(t[c.index], c.k) for c in chains]
-    groups: list[list[int]] = []
-    for i, f in enumerate(fits):
-        for g in groups:
-            h = fits[g[0]]
-            if abs(f.period - h.period) <= 4 * math.hypot(f.period_std, h.period_std) + 1e-9 * f.period:
+    members: list[list[int]] = []
+    for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
+        f = fits[i]
+        for g in members:
+            h = fits[g[0]]  # the group's smallest period
+            n = round(f.period / h.period)
+            if n >= 1 and abs(f.period - n * h.period) <= 4 * math.hypot(f.period_std, n * h.period_std) \
+                    + 1e-9 * f.period:
                 g.append(i)
                 break
         else:
-            groups.append([i])
+            members.append([i])
+    groups = []
+    for g in members:
+        big = max(fits[i].period for i in g)
+        mult = [max(1, round(big / fits[i].period)) for i in g]
+        est = np.array([m * fits[i].period for i, m in zip(g, mult)])
+        w = np.array([1.0 / max(m * fits[i].period_std, 1e-12) ** 2 for i, m in zip(g, mult)])
+        frame = float(np.sum(w * est) / w.sum())
+        origins = np.concatenate([fits[i].origin + fits[i].period * np.arange(m) for i, m in zip(g, mult)])
+        groups.append(Group(g, frame, origins))
     return groups
 
 
@@ -111,21 +134,18 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
     lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
     models, schedules = [], []
     for g in group_chains(t, chains):
-        fits = [line_fit(t[chains[i].index], chains[i].k) for i in g]
-        for i in g:
+        for i in g.chains:
             labels[chains[i].index] = len(models)
-        if len(g) > 1:
-            w = np.array([1.0 / max(f.period_std, 1e-12) ** 2 for f in fits])
-            frame = float(np.sum(w * [f.period for f in fits]) / w.sum())
-            origins = np.array([f.origin for f in fits])
-            models.append(stagger_model(frame, origins, p.sigma))
-            sched = np.concatenate([_lattice(f.origin, frame, *_span(t, chains[i], frame)) for i, f in zip(g, fits)])
+        c = chains[g.chains[0]]
+        if g.origins.size > 1:
+            models.append(stagger_model(g.frame, g.origins, p.sigma))
+            first = min(float(t[chains[i].index[0]]) for i in g.chains) - 1.5 * g.frame
+            last = max(float(t[chains[i].index[-1]]) for i in g.chains) + 1.5 * g.frame
+            sched = np.concatenate([_lattice(o, g.frame, first, last) for o in g.origins])
         else:
-            c = chains[g[0]]
             model = single_train_model(t[c.index], c.k, p.sigma)
             models.append(model)
-            sched = _lattice(fits[0].origin, fits[0].period, *_span(t, c, fits[0].period)) \
-                if model.kind == "constant" else t[c.index]
+            sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if model.kind == "constant" else t[c.index]
         schedules.append(np.sort(sched[(sched >= lo) & (sched <= hi)]))
     if align and schedules:
         src = np.concatenate([np.full(s.size, i) for i, s in enumerate(schedules)])

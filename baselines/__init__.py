@@ -30,3 +30,13 @@ register_policy("ekf-bank", "baselines.ekf:EKFBank",
 register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
                 description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
                             "learning rule (12), in a bank as ekf-bank")
+register_policy("cdif", "baselines.blind.policy:CDIFPolicy",
+                description="blind: Mardia's CDIF histogram (1989) + sequence search + re-association (window=1000)")
+register_policy("sdif", "baselines.blind.policy:SDIFPolicy",
+                description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association")
+register_policy("pri-transform", "baselines.blind.policy:PRITransformPolicy",
+                description="blind: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search")
+register_policy("dbscan", "baselines.blind.clustering:DBSCANPolicy",
+                description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)")
+register_policy("hdbscan", "baselines.blind.clustering:HDBSCANPolicy",
+                description="blind: scikit-learn HDBSCAN on pulse descriptors (the TDC baseline's method)")

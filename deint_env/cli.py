@@ -150,6 +150,16 @@ def _add_label(sub) -> None:
     p.set_defaults(func=cmd_label)
 
 
+BLIND_LABELS = 32  # the label budget of `deint label` with a blind policy and no priors
+
+
+def _finds_own_trains(spec: str) -> bool:
+    """Whether the policy is a blind deinterleaver (class attribute `blind_only`): it runs without priors."""
+    from deint_env.policies import parse_policy_spec, policy_info
+
+    return bool(getattr(policy_info(parse_policy_spec(spec)[0]).load(), "blind_only", False))
+
+
 def _cli_priors(args: argparse.Namespace):
     from deint_env.episode import Priors
 
@@ -161,6 +171,8 @@ def _cli_priors(args: argparse.Namespace):
         raise DeintError(f"--n-sources={args.n_sources} is invalid: an integer >= 1")
     if args.prior_periods is None:
         if args.n_sources is None:
+            if _finds_own_trains(args.policy):  # a blind deinterleaver needs no priors: BLIND_LABELS tracks
+                return Priors.from_json_dict({"blind": True, "label_budget": BLIND_LABELS}, where="blind policy")
             raise DeintError("the policy needs priors: give --priors PRIORS.json, or --prior-periods a,b,... "
                              "(or --n-sources N for blind labelling)")
         return Priors.from_json_dict({"blind": True, "label_budget": args.n_sources}, where="--n-sources")

@@ -40,8 +40,8 @@ class SearchParams:
     min_fill: float = 0.8
     max_miss: int = 3
     max_trains: int = 32
-    missing_prob: float = 0.01  # for the re-association
-    spurious_rate: float = 0.01  # spurious pulses per received pulse, for the re-association
+    missing_prob: float = 0.0  # for the re-association (the priors' channel statistics)
+    spurious_rate: float = 0.0  # spurious pulses per received pulse, for the re-association
 
 
 class FoundTrain(NamedTuple):

@@ -39,6 +39,8 @@ def _check_window(window: object) -> int:
 class BlindWindowPolicy:
     """Base: buffering, emission at lag window - 1, labels carried across windows, estimates."""
 
+    blind_only = True  # finds its own trains: `deint label` runs it without priors
+
     def __init__(self, window: int = 1000):
         self.window = _check_window(window)
         self.lag = self.window - 1
@@ -172,11 +174,11 @@ class HistogramPolicy(BlindWindowPolicy):
         med = float(np.median(gaps)) if gaps.size else 1.0
         span = float(toa[-1] - toa[0]) if toa.size > 1 else 1.0
         pri_max = self.pri_max or max(min(span / self.min_pulses, 100 * med), 1e-9)
-        pri_min = self.pri_min or min(max(0.5 * med, 6 * sigma), 0.5 * pri_max)
+        pri_min = self.pri_min or min(max(0.5 * med, 12 * sigma), 0.5 * pri_max)
         pr = self.priors
         return SearchParams(sigma=sigma, pri_min=pri_min, pri_max=pri_max, min_pulses=self.min_pulses,
                             min_fill=self.min_fill, max_miss=self.max_miss,
-                            missing_prob=max(pr.missing_prob, 0.01), spurious_rate=max(pr.spurious_rate, 0.01))
+                            missing_prob=pr.missing_prob, spurious_rate=pr.spurious_rate)
 
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
         sigma = self.priors.jitter_std

@@ -86,11 +86,14 @@ def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory):  # pragma: no c
     return idx[:m].copy(), ks[:m].copy()
 
 
-def accept(chain: Chain, min_pulses: int, min_fill: float) -> bool:
-    """A train must have `min_pulses` pulses and fill `min_fill` of the arrivals its span predicts
-    (a walk through other trains' pulses at a wrong PRI hits its gate only now and then)."""
+def accept(chain: Chain, min_pulses: int, min_fill: float, chance: float = 0.0) -> bool:
+    """A train must have `min_pulses` pulses and fill `min_fill` of the arrivals its span predicts,
+    and clearly more than a walk at a wrong PRI would by chance (`chance`: the probability that a
+    gate holds some free pulse anyway), by three binomial standard deviations."""
     n = chain.index.size
-    return n >= min_pulses and n >= min_fill * (int(chain.k[-1]) - int(chain.k[0]) + 1)
+    slots = int(chain.k[-1]) - int(chain.k[0]) + 1
+    need = max(min_fill, chance + 3.0 * np.sqrt(chance * (1.0 - chance) / slots))
+    return n >= min_pulses and n >= need * slots
 
 
 def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float, sigma: float, *,
@@ -105,10 +108,12 @@ def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float,
         return None
     head = cand[t[cand] <= t[cand[0]] + 1.5 * pri + 3 * sigma][:n_seeds]
     rest = cand[np.linspace(0, cand.size - 1, n_seeds // 2).astype(np.int64)]
+    density = cand.size / max(float(t[cand[-1]] - t[cand[0]]), 1e-300)
+    chance = float(-np.expm1(-density * 6.0 * sigma))  # a free pulse within the +-3 sigma gate
     best: Chain | None = None
     for seed in np.unique(np.concatenate([head, rest])):
         idx, ks = _walk(t, free, int(seed), float(pri), float(pri_unc), float(sigma), max_miss, memory)
         chain = Chain(idx, ks, int(ks[-1]) + 1)
-        if accept(chain, min_pulses, min_fill) and (best is None or idx.size > best.index.size):
+        if accept(chain, min_pulses, min_fill, chance) and (best is None or idx.size > best.index.size):
             best = chain
     return best

@@ -1,0 +1,176 @@
+"""Blind deinterleavers (baselines/blind): CDIF, SDIF, the PRI transform, DBSCAN / HDBSCAN.
+
+Pulses come from a small generator written here, independent of deint_env.simulate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.blind.pri_transform import pri_transform
+from baselines.genie import genie_labels
+from deint_env.cli import main
+from deint_env.episode import Episode, Priors
+from deint_env.errors import DeintError, NotApplicable
+from deint_env.labels import correct_link
+from deint_env.modulation import PRIModel, modulation_scores
+from deint_env.policies import make_policy
+from deint_env.runner import play
+
+
+def pulses(pris: list[list[float]], phases: list[float], duration: float, jitter: float, seed: int = 0,
+           amplitudes: list[float] | None = None):
+    """Trains of cyclic PRI sequences (one level: constant; several: stagger) with white TOA jitter,
+    merged and sorted: (toa, source, amplitude or None)."""
+    rng = np.random.default_rng(seed)
+    toa, src, amp = [], [], []
+    global SCHEDULE
+    SCHEDULE = []
+    for i, (levels, phase) in enumerate(zip(pris, phases)):
+        n = int(duration / np.mean(levels)) + 1
+        gaps = np.resize(np.asarray(levels, dtype=float), n - 1)
+        t = phase + np.concatenate([[0.0], np.cumsum(gaps)])
+        t = t[t < duration]
+        SCHEDULE.append(t.copy())
+        t = t + rng.normal(0, jitter, t.size)
+        toa.append(t), src.append(np.full(t.size, i))
+        if amplitudes is not None:
+            amp.append(amplitudes[i] + rng.normal(0, 0.01, t.size))
+    order = np.argsort(np.concatenate(toa), kind="stable")
+    a = np.concatenate(amp)[order] if amplitudes is not None else None
+    return np.concatenate(toa)[order], np.concatenate(src)[order].astype(np.int32), a
+
+
+def episode(toa, source, amp=None, n_labels=8, jitter=0.0) -> Episode:
+    mask = np.left_shift(np.uint64(1), source.astype(np.uint64))
+    return Episode(scenario="test", seed=0, toa=toa, amplitude=amp, source=source, mask=mask, truth=None,
+                   priors=Priors(n_labels=n_labels, blind=True, jitter_std=jitter))
+
+
+def link_accuracy(labels, ep) -> float:
+    return float(np.mean(correct_link(labels, ep.source, ep.mask, ep.n_labels)))
+
+
+SCHEDULE: list[np.ndarray] = []  # the noise-free emissions of the last `pulses` call
+
+
+def genie_accuracy(ep, jitter: float) -> float:
+    """Link accuracy of the known-parameter MAP labelling (baselines.genie) of the last trains made."""
+    src = np.concatenate([np.full(s.size, i) for i, s in enumerate(SCHEDULE)])
+    labels = genie_labels(ep.toa, np.concatenate(SCHEDULE), src, jitter, 0.0, 0.0, 0.0)
+    return link_accuracy(np.where(labels < 0, ep.n_labels, labels), ep)
+
+
+THREE = ([[13.0], [29.0], [47.0]], [1.0, 5.0, 11.0])
+
+
+@pytest.mark.parametrize("name", ["cdif", "sdif", "pri-transform"])
+def test_three_constant_trains_found_and_labelled(name):
+    toa, src, _ = pulses(*THREE, duration=3000, jitter=0.1, seed=1)
+    ep = episode(toa, src, jitter=0.1)
+    policy = make_policy(name)
+    res = play(policy, ep, clustering=False)
+    assert policy.trains_found == 3
+    assert link_accuracy(res.labels, ep) >= 0.95 * genie_accuracy(ep, 0.1)
+    period = np.sort(policy.estimates()["period"][np.isfinite(policy.estimates()["period"])])
+    np.testing.assert_allclose(period, [13.0, 29.0, 47.0], rtol=2e-4)
+    assert [m.kind for m in policy.modulations() if m is not None] == ["constant"] * 3
+
+
+@pytest.mark.parametrize("name", ["cdif", "pri-transform"])
+def test_stagger_is_one_train_with_its_levels(name):
+    # a 2-level stagger (sub-PRIs 12 and 18: frame 30) beside a constant train of PRI 23
+    toa, src, _ = pulses([[12.0, 18.0], [23.0]], [2.0, 7.0], duration=3000, jitter=0.1, seed=2)
+    ep = episode(toa, src, jitter=0.1)
+    policy = make_policy(name)
+    res = play(policy, ep, clustering=False)
+    assert policy.trains_found == 2
+    assert link_accuracy(res.labels, ep) >= 0.95 * genie_accuracy(ep, 0.1)
+    models = sorted((m for m in policy.modulations() if m is not None), key=lambda m: m.kind)
+    assert [m.kind for m in models] == ["constant", "stagger"]
+    assert models[0].period == pytest.approx(23.0, rel=1e-3)
+    assert sorted(models[1].levels) == pytest.approx([12.0, 18.0], abs=0.05)
+
+
+def test_unknown_jitter_is_measured():
+    # no jitter in the priors (as `deint label` without priors): sigma is measured from the trains
+    toa, src, _ = pulses(*THREE, duration=3000, jitter=0.3, seed=3)
+    ep = episode(toa, src, jitter=0.0)
+    policy = make_policy("cdif")
+    res = play(policy, ep, clustering=False)
+    assert policy.trains_found == 3
+    assert link_accuracy(res.labels, ep) >= 0.9 * genie_accuracy(ep, 0.3)
+
+
+def test_windows_carry_labels_across():
+    toa, src, _ = pulses(*THREE, duration=3000, jitter=0.1, seed=4)
+    ep = episode(toa, src, jitter=0.1)
+    policy = make_policy("pri-transform:window=120")
+    res = play(policy, ep, clustering=False)
+    assert policy.lag == 119 and len(policy.trains_per_window) == -(-len(toa) // 120)
+    # labels carried across the 4 window changes (a lost label costs one link per train per change)
+    assert link_accuracy(res.labels, ep) >= 0.95 * genie_accuracy(ep, 0.1)
+
+
+def test_pri_transform_suppresses_subharmonics():
+    # Nishiguchi & Kobayashi's point (their 3-train example, our parameters): the difference histogram
+    # has peaks at multiples of every PRI, the transform only at the PRIs themselves
+    toa, _, _ = pulses(*THREE, duration=3000, jitter=0.05, seed=5)
+    centres, mag, count, _ = pri_transform(toa, 5.0, 100.0, 0.1, 0.01, 0.05)
+    at = lambda x, arr: arr[np.argmin(np.abs(centres - x))]  # noqa: E731
+    for t in (13.0, 29.0, 47.0):
+        assert at(t, mag) > 0.8 * at(t, count)  # coherent at the PRI
+    for t in (26.0, 39.0, 58.0, 94.0):  # 2x13, 3x13, 2x29, 2x47
+        assert at(t, count) > 0.5 * 3000 / t  # the histogram has the multiple
+        assert at(t, mag) < 0.35 * at(t, count)  # the transform suppresses it
+
+
+def test_hdbscan_uses_amplitude_and_dbscan_runs():
+    toa, src, amp = pulses(*THREE, duration=3000, jitter=0.1, seed=6, amplitudes=[1.0, 2.0, 3.0])
+    ep = episode(toa, src, amp, jitter=0.1)
+    policy = make_policy("hdbscan")
+    res = play(policy, ep, clustering=False)
+    assert policy.trains_found >= 3
+    from sklearn.metrics import v_measure_score
+
+    assert v_measure_score(src, res.labels) > 0.8
+    d = make_policy("dbscan:eps=0.2")
+    play(d, ep, clustering=False)
+    assert d.trains_found >= 1
+
+
+def test_anchored_scenarios_and_bad_parameters_are_refused():
+    toa, src, _ = pulses(*THREE, duration=500, jitter=0.1)
+    anchored = Episode(scenario="t", seed=0, toa=toa, amplitude=None, source=src,
+                       mask=np.left_shift(np.uint64(1), src.astype(np.uint64)), truth=None,
+                       priors=Priors(n_labels=3, period=np.array([13.0, 29.0, 47.0])))
+    with pytest.raises(NotApplicable):
+        play(make_policy("cdif"), anchored)
+    for bad in ("cdif:window=1", "sdif:min_fill=2", "pri-transform:pri_min=-1", "hdbscan:min_cluster_size=1"):
+        with pytest.raises(DeintError):
+            make_policy(bad)
+
+
+def test_cli_labels_a_file_without_priors(tmp_path, capsys):
+    toa, src, _ = pulses(*THREE, duration=2000, jitter=0.2, seed=7)
+    f = tmp_path / "p.csv"
+    f.write_text("toa\n" + "".join(f"{t!r}\n" for t in toa.tolist()))
+    out = tmp_path / "l.csv"
+    assert main(["label", str(f), "--policy", "cdif", "-o", str(out)]) == 0
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    labels = rows[:, 1].astype(int)
+    labels = np.where(labels < 0, 32, labels)
+    ep = episode(toa, src, n_labels=32)
+    assert link_accuracy(labels, ep) >= 0.95 * genie_accuracy(ep, 0.2)
+
+
+def test_modulation_scores():
+    truth = [PRIModel("constant", 20.0), PRIModel("stagger", 15.0, (12.0, 18.0)),
+             PRIModel("sinusoidal", 30.0, (), 0.1, 50.0)]
+    found = [PRIModel("stagger", 15.1, (18.1, 12.0)), PRIModel("constant", 20.2), None,
+             PRIModel("sliding", 30.0, (), 0.1, 50.0)]
+    s = modulation_scores(found, truth, np.array([1, 0, 3]))
+    assert s.n_scored == 3 and s.kind_accuracy == pytest.approx(2 / 3)
+    assert s.period_rel_error == pytest.approx(np.mean([0.01, 0.1 / 15]))
+    assert s.level_rel_error == pytest.approx(np.mean([0.0, 0.1 / 18]))  # the best rotation
+    assert np.isnan(s.depth_rel_error)

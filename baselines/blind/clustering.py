@@ -109,4 +109,4 @@ class HDBSCANPolicy(ClusterPolicy):
         if x.shape[0] < 2:
             return np.full(x.shape[0], -1)
         return HDBSCAN(min_cluster_size=min(self.min_cluster_size, x.shape[0]),
-                       min_samples=self.min_samples).fit_predict(x)
+                       min_samples=self.min_samples, copy=True).fit_predict(x)

@@ -223,6 +223,8 @@ def cmd_label(args: argparse.Namespace) -> int:
         episode = train.episode(priors, name=Path(args.pulses).name)
         if hasattr(policy, "attach_data"):
             policy.attach_data(train.model_input())
+        if hasattr(policy, "attach_features"):  # a blind deinterleaver: the file's other descriptors
+            policy.attach_features(train.features)
     else:
         episode = io.read_pulses(args.pulses, priors)
     t0 = time.perf_counter()

@@ -174,3 +174,26 @@ def test_modulation_scores():
     assert s.period_rel_error == pytest.approx(np.mean([0.01, 0.1 / 15]))
     assert s.level_rel_error == pytest.approx(np.mean([0.0, 0.1 / 18]))  # the best rotation
     assert np.isnan(s.depth_rel_error)
+
+
+def test_tdc_file_descriptors_presort_then_pri(tmp_path):
+    # two emitters with one PRI (only their frequency tells them apart) and a third: a TDC file with
+    # a frequency column, labelled through `deint label` with no priors
+    from deint_env import tdc
+
+    toa, src, _ = pulses([[20.0], [20.0], [31.0]], [3.0, 11.0, 7.0], duration=3000, jitter=0.1, seed=8)
+    freq = np.array([9000.0, 9400.0, 9700.0])[src] + np.random.default_rng(0).normal(0, 2.0, toa.size)
+    f = tmp_path / "p.h5"
+    tdc.write_tdc(f, toa, labels=src, features={"frequency": freq}, dtype="float64")
+    scores = {}
+    for name in ("cdif", "hdbscan"):
+        out = tmp_path / f"{name}.h5"
+        assert main(["label", str(f), "--policy", name, "-o", str(out)]) == 0
+        scores[name] = tdc.tdc_scores(src, tdc.read_tdc(out).labels)["v_measure"]
+    assert scores["cdif"] > 0.95
+    # without the frequency the two PRI-20 emitters are one train at PRI 20 / 2 ... or a stagger
+    ep = episode(toa, src, jitter=0.1)
+    policy = make_policy("cdif")
+    labels = play(policy, ep, clustering=False).labels
+    assert policy.trains_found == 2
+    assert tdc.tdc_scores(src, labels)["v_measure"] < scores["cdif"]

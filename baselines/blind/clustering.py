@@ -10,8 +10,6 @@ differences between its successive pulses, its model constant; noise (-1) is spu
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from baselines.blind.pipeline import Deinterleaving, FoundTrain
@@ -23,10 +21,13 @@ def descriptors(toa: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> 
     """(n, d) standardised descriptors: extra columns, then the TOA differences to both neighbours."""
     gaps = np.diff(toa)
     fill = float(np.median(gaps)) if gaps.size else 0.0
-    prev = np.concatenate([[fill], gaps])
-    nxt = np.concatenate([gaps, [fill]])
-    cols = [np.asarray(v, dtype=np.float64) for v in (extra or {}).values()] + [prev, nxt]
-    x = np.stack(cols, axis=1)
+    return standardised({**(extra or {}), "dt_prev": np.concatenate([[fill], gaps]),
+                         "dt_next": np.concatenate([gaps, [fill]])})
+
+
+def standardised(columns: dict[str, np.ndarray]) -> np.ndarray:
+    """(n, d): each column centred on its median and scaled by its interquartile range."""
+    x = np.stack([np.asarray(v, dtype=np.float64) for v in columns.values()], axis=1)
     med = np.median(x, axis=0)
     iqr = np.subtract(*np.percentile(x, [75, 25], axis=0))
     return (x - med) / np.where(iqr > 0, iqr, 1.0)
@@ -48,31 +49,14 @@ def cluster_result(toa: np.ndarray, ids: np.ndarray) -> Deinterleaving:
 
 
 class ClusterPolicy(BlindWindowPolicy):
-    """Base of `dbscan` / `hdbscan`: cluster each window's descriptors.  `features` (from
-    `attach_features`) adds columns such as a TDC file's frequency or angle of arrival."""
-
-    def __init__(self, window: int = 1000):
-        super().__init__(window)
-        self._features: dict[str, np.ndarray] | None = None
-        self._offset = 0
-
-    def attach_features(self, features: dict[str, np.ndarray] | None) -> None:
-        """Extra descriptor columns for the next episode, one value per pulse (read pulse by pulse,
-        each only once its pulse has been observed)."""
-        self._features = None if features is None else {k: np.asarray(v, dtype=np.float64) for k, v in
-                                                         features.items()}
-
-    def reset(self, priors: Any, info: dict[str, Any]) -> None:
-        super().reset(priors, info)
-        self._offset = 0
+    """Base of `dbscan` / `hdbscan`: cluster each window's descriptors (with `attach_features`, also
+    columns such as a TDC file's frequency or angle of arrival)."""
 
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
         extra: dict[str, np.ndarray] = {}
         if amplitude is not None:
             extra["amplitude"] = amplitude
-        if self._features is not None:
-            extra.update({k: v[self._offset:self._offset + toa.size] for k, v in self._features.items()})
-        self._offset += toa.size
+        extra.update(self.window_features(toa.size))
         return cluster_result(toa, self.cluster(descriptors(toa, extra)))
 
     def cluster(self, x: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from baselines.blind.detectors import CDIF, SDIF, PRITransform
 from baselines.blind.pipeline import Deinterleaving, Detector, SearchParams, deinterleave
 from baselines.blind.pri_models import line_fit
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
+from deint_env.errors import DeintError, NotApplicable
 from deint_env.modulation import PRIModel
 from deint_env.tdc import MAX_WINDOW
 
@@ -44,6 +44,20 @@ class BlindWindowPolicy:
     def __init__(self, window: int = 1000):
         self.window = _check_window(window)
         self.lag = self.window - 1
+        self._features: dict[str, np.ndarray] | None = None
+
+    def attach_features(self, features: dict[str, np.ndarray] | None) -> None:
+        """Pulse descriptors besides TOA and amplitude (a TDC file's frequency, pulse width, angle of
+        arrival) for the next episodes, one value per pulse; a window reads only its own pulses'."""
+        self._features = None if not features else {k: np.asarray(v, dtype=np.float64) for k, v in
+                                                     features.items()}
+
+    def window_features(self, n: int) -> dict[str, np.ndarray]:
+        """The attached descriptors of the window being labelled (its n pulses)."""
+        if self._features is None:
+            return {}
+        done = self._seen - n
+        return {k: v[done:done + n] for k, v in self._features.items()}
 
     # ---- to implement ------------------------------------------------------------------------------
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
@@ -55,9 +69,16 @@ class BlindWindowPolicy:
             raise NotApplicable("blind deinterleavers find their own trains: blind scenarios only (no prior tracks)")
         self.priors = priors
         self.n_labels = priors.n_labels
+        n = info.get("n_pulses")
+        if self._features is not None and n is not None:
+            bad = [k for k, v in self._features.items() if v.shape != (n,)]
+            if bad:
+                raise DeintError(f"attached descriptor {bad[0]} has {self._features[bad[0]].size} values for an "
+                                 f"episode of {n} pulses")
         self._amp = bool(info.get("has_amplitude", False))
         self._toa: list[float] = []
         self._amps: list[float] = []
+        self._seen = 0
         self._ready: list[int] = []
         self._next = 0
         self._step = 0
@@ -71,6 +92,7 @@ class BlindWindowPolicy:
     def act(self, obs: dict[str, Any]) -> int:
         if int(obs["valid"]):
             self._toa.append(float(obs["toa"][0]))
+            self._seen += 1
             if self._amp:
                 self._amps.append(float(obs["amplitude"][0]))
             if len(self._toa) == self.window:
@@ -154,7 +176,8 @@ class HistogramPolicy(BlindWindowPolicy):
     detector: Detector
 
     def __init__(self, window: int = 1000, align: bool = True, pri_min: float | None = None,
-                 pri_max: float | None = None, min_pulses: int = 6, min_fill: float = 0.8, max_miss: int = 3):
+                 pri_max: float | None = None, min_pulses: int = 6, min_fill: float = 0.8, max_miss: int = 3,
+                 presort_eps: float = 0.3):
         super().__init__(window)
         for name, v in (("pri_min", pri_min), ("pri_max", pri_max)):
             if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -165,6 +188,9 @@ class HistogramPolicy(BlindWindowPolicy):
             raise ValueError(f"min_pulses={min_pulses!r} is invalid: an integer >= 3")
         if not 0 < min_fill <= 1:
             raise ValueError(f"min_fill={min_fill!r} is invalid: a number in (0, 1]")
+        if not presort_eps > 0:
+            raise ValueError(f"presort_eps={presort_eps!r} is invalid: a positive number (standardised units)")
+        self.presort_eps = float(presort_eps)
         self.align = bool(align)
         self.pri_min, self.pri_max = pri_min, pri_max
         self.min_pulses, self.min_fill, self.max_miss = min_pulses, float(min_fill), int(max_miss)
@@ -181,6 +207,30 @@ class HistogramPolicy(BlindWindowPolicy):
                             missing_prob=pr.missing_prob, spurious_rate=pr.spurious_rate)
 
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
+        """Deinterleave by PRI; with attached descriptors (frequency, pulse width, angle of arrival),
+        pulses are first pre-sorted into groups of like descriptors (DBSCAN, as an EW receiver sorts
+        by RF and AOA before the TOA analysis) and each group is deinterleaved on its own."""
+        feats = self.window_features(toa.size)
+        if not feats:
+            return self._label_toas(toa)
+        from sklearn.cluster import DBSCAN
+
+        from baselines.blind.clustering import standardised
+
+        ids = DBSCAN(eps=self.presort_eps, min_samples=self.min_pulses).fit_predict(standardised(feats))
+        labels = np.full(toa.size, -1, dtype=np.int64)
+        trains = []
+        for g in np.unique(ids):
+            idx = np.flatnonzero(ids == g)
+            if idx.size < self.min_pulses:
+                continue
+            part = self._label_toas(toa[idx])
+            for tr in part.trains:
+                labels[idx[tr.pulses]] = len(trains)
+                trains.append(tr._replace(pulses=idx[tr.pulses]))
+        return Deinterleaving(labels, trains)
+
+    def _label_toas(self, toa: np.ndarray) -> Deinterleaving:
         sigma = self.priors.jitter_std
         if sigma <= 0:  # unknown noise: a generous first pass, then the noise its trains show
             gaps = np.diff(toa)

@@ -138,10 +138,12 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
             labels[chains[i].index] = len(models)
         c = chains[g.chains[0]]
         if g.origins.size > 1:
-            models.append(stagger_model(g.frame, g.origins, p.sigma))
-            first = min(float(t[chains[i].index[0]]) for i in g.chains) - 1.5 * g.frame
-            last = max(float(t[chains[i].index[-1]]) for i in g.chains) + 1.5 * g.frame
-            sched = np.concatenate([_lattice(o, g.frame, first, last) for o in g.origins])
+            model, phases = stagger_model(g.frame, g.origins, p.sigma)
+            models.append(model)
+            frame = model.period if model.kind == "constant" else g.frame
+            first = min(float(t[chains[i].index[0]]) for i in g.chains) - 1.5 * frame
+            last = max(float(t[chains[i].index[-1]]) for i in g.chains) + 1.5 * frame
+            sched = np.concatenate([_lattice(o, frame, first, last) for o in phases])
         else:
             model = single_train_model(t[c.index], c.k, p.sigma)
             models.append(model)

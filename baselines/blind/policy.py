@@ -8,9 +8,9 @@ the label least recently used (a new track: the link to its first pulse is "none
 is fresh, so at most one link is lost per re-used label).  Trains beyond the label budget are labelled
 spurious (the smallest trains first).
 
-Without a known TOA noise (priors.jitter_std = 0, e.g. `deint label` with no priors) the window is
-deinterleaved twice: first with sigma = 5 % of the median pulse spacing, then with the noise measured
-from the residuals of the constant-PRI trains found.
+Without a known TOA noise (priors.jitter_std = 0, e.g. `deint label` with no priors or a TDC file)
+the noise is measured first, from trial deinterleavings with a growing sigma
+(`HistogramPolicy._search_sigma`).
 """
 
 from __future__ import annotations
@@ -232,13 +232,30 @@ class HistogramPolicy(BlindWindowPolicy):
 
     def _label_toas(self, toa: np.ndarray) -> Deinterleaving:
         sigma = self.priors.jitter_std
-        if sigma <= 0:  # unknown noise: a generous first pass, then the noise its trains show
-            gaps = np.diff(toa)
-            first = deinterleave(toa, self.detector, self._params(toa, 0.05 * float(np.median(gaps)) if gaps.size
-                                                                   else 1.0), align=False)
-            sigma = self._measured_sigma(toa, first) or (0.05 * float(np.median(gaps)) if gaps.size else 1.0)
+        if sigma <= 0:
+            sigma = self._search_sigma(toa)
         self._sigma_used = sigma
         return deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+
+    def _search_sigma(self, toa: np.ndarray) -> float:
+        """The TOA noise, unknown: trial deinterleavings with sigma doubling from 1 % of the median
+        pulse spacing.  Too small a sigma fragments the trains (gates miss jittered pulses), too large
+        a one lets chance pulses in until no train passes the chance test; the smallest trial whose
+        trains hold 95 % of the most pulses any trial explained is taken, and sigma is the spread of
+        its trains' residuals."""
+        gaps = np.diff(toa)
+        trial = 0.01 * (float(np.median(gaps)) if gaps.size else 1.0)
+        runs = []  # (trial, pulses explained, measured sigma)
+        for _ in range(10):
+            first = deinterleave(toa, self.detector, self._params(toa, trial), align=False)
+            covered = sum(tr.pulses.size for tr in first.trains)
+            runs.append((trial, covered, self._measured_sigma(toa, first)))
+            if covered == 0 and any(r[1] for r in runs):
+                break
+            trial *= 2.0
+        best = max(r[1] for r in runs)
+        chosen = next(r for r in runs if r[1] >= 0.95 * best)
+        return chosen[2] or chosen[0]
 
     @staticmethod
     def _measured_sigma(toa: np.ndarray, first: Deinterleaving) -> float | None:

@@ -40,15 +40,35 @@ def line_fit(t: np.ndarray, k: np.ndarray) -> LineFit:
     return LineFit(float(tm - slope * km), slope, s / math.sqrt(skk) if skk > 0 else math.inf, s)
 
 
-def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> PRIModel:
-    """The model of m sub-trains sharing the frame period: stagger levels, or constant F / m."""
-    phases = np.sort(np.mod(origins, frame))
+def _circular_groups(phases: np.ndarray, period: float, tol: float) -> np.ndarray:
+    """Sorted phases in [0, period) with those closer than tol (circularly) merged into their mean."""
+    ph = np.sort(np.mod(phases, period))
+    groups = [[ph[0]]]
+    for x in ph[1:]:
+        if x - groups[-1][-1] <= tol:
+            groups[-1].append(x)
+        else:
+            groups.append([x])
+    if len(groups) > 1 and groups[0][0] + period - groups[-1][-1] <= tol:  # wrap-around
+        groups[0] = [x - period for x in groups.pop()] + groups[0]
+    return np.sort(np.mod([np.mean(g) for g in groups], period))
+
+
+def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIModel, np.ndarray]:
+    """The model of sub-trains sharing the frame period F, and the distinct sub-train phases.
+
+    Sub-trains on one phase (pieces of one lattice) are merged; if the phases all lie on a lattice
+    F / n (a constant train extracted in pieces, some perhaps missing) the model is constant F / n;
+    otherwise a stagger whose levels are the gaps between the phases, in emission order."""
+    tol = 4 * sigma + 1e-3 * frame
+    phases = _circular_groups(np.asarray(origins, dtype=np.float64), frame, tol)
     levels = np.diff(np.concatenate([phases, [phases[0] + frame]]))
-    m = levels.size
-    if np.max(np.abs(levels - frame / m)) <= 4 * sigma + 0.01 * frame / m:
-        return PRIModel("constant", frame / m)
-    # emission order from the first sub-train's phase: levels already follow the sorted phases
-    return PRIModel("stagger", frame / m, tuple(float(v) for v in levels))
+    n = max(1, round(frame / float(levels.min())))
+    sub = frame / n
+    off = np.mod(phases - phases[0] + tol, sub) - tol  # each phase's distance from the F/n lattice
+    if np.all(np.abs(off) <= tol):
+        return PRIModel("constant", sub), phases[:1]
+    return PRIModel("stagger", frame / levels.size, tuple(float(v) for v in levels)), phases
 
 
 def _sine_fit(n: np.ndarray, d: np.ndarray, max_cycle: float) -> tuple[float, float, float]:

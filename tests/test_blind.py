@@ -197,3 +197,25 @@ def test_tdc_file_descriptors_presort_then_pri(tmp_path):
     labels = play(policy, ep, clustering=False).labels
     assert policy.trains_found == 2
     assert tdc.tdc_scores(src, labels)["v_measure"] < scores["cdif"]
+
+
+def test_pri_model_fits():
+    from baselines.blind.pri_models import single_train_model, stagger_model
+
+    rng = np.random.default_rng(9)
+    n = np.arange(400)
+    # wobulated: PRI_n = 20 (1 + 0.1 sin(2 pi n / 50 + 0.3)); and a saw-tooth sweep of depth 0.3, cycle 32
+    for kind, pri in (("sinusoidal", 20 * (1 + 0.1 * np.sin(2 * np.pi * n / 50 + 0.3))),
+                      ("sliding", 20 * (1 + 0.3 * ((n % 32) / 31 - 0.5)))):
+        t = np.concatenate([[0.0], np.cumsum(pri)]) + rng.normal(0, 0.05, n.size + 1)
+        m = single_train_model(t, np.arange(n.size + 1), 0.05)
+        assert m.kind == kind and m.period == pytest.approx(20.0, rel=0.01)
+        assert m.depth == pytest.approx(0.1 if kind == "sinusoidal" else 0.3, rel=0.1)
+        assert m.cycle == pytest.approx(50 if kind == "sinusoidal" else 32, rel=0.05)
+    t = np.arange(300) * 20.0 + rng.normal(0, 0.05, 300)
+    assert single_train_model(t, np.arange(300), 0.05).kind == "constant"
+    # pieces of a constant PRI-10 train at frame 40 (one piece missing, one found twice): constant 10
+    model, phases = stagger_model(40.0, np.array([3.0, 13.02, 33.0, 3.01]), 0.05)
+    assert model.kind == "constant" and model.period == pytest.approx(10.0) and phases.size == 1
+    model, phases = stagger_model(30.0, np.array([2.0, 14.0]), 0.05)
+    assert model.kind == "stagger" and model.levels == pytest.approx((12.0, 18.0))

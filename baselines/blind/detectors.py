@@ -33,7 +33,7 @@ class CDIF:
 class SDIF:
     """Milojevic & Popovic's sequential difference histogram (threshold x (E - c) exp(-tau / (k N)))."""
 
-    def __init__(self, x: float = 0.25, k: float = 0.3):
+    def __init__(self, x: float = 0.1, k: float = 0.3):
         self.x, self.k = x, k
 
     def __call__(self, t: np.ndarray, sigma: float, pri_min: float, pri_max: float) -> Iterator[list[Candidate]]:

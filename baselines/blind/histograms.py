@@ -58,7 +58,7 @@ def cdif_candidates(t: np.ndarray, pri_min: float, pri_max: float, width: float,
         yield [Candidate(float(centre[i]), width / 2, float(acc[i] / thr[i])) for i in _peaks(acc, over)]
 
 
-def sdif_candidates(t: np.ndarray, pri_min: float, pri_max: float, width: float, *, x: float = 0.25,
+def sdif_candidates(t: np.ndarray, pri_min: float, pri_max: float, width: float, *, x: float = 0.1,
                     k: float = 0.3, max_level: int = 8) -> Iterator[list[Candidate]]:
     """Per difference level, the SDIF candidates (smallest PRI first)."""
     edges = _bins(t, pri_min, pri_max, width)

@@ -73,6 +73,37 @@ def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Cha
             break
         chains.append(found)
         free[found.index] = False
+    chains.extend(agile_chains(t, free, p, len(chains)))
+    return chains
+
+
+def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int) -> list[Chain]:
+    """Modulated trains (sliding, wobulated) among the pulses the constant-PRI loop left: their
+    differences spread over a band of PRIs, so the candidates are the peaks of a coarse histogram
+    (bins 5 % of the PRI wide, the first three difference levels), and the walk fits its predicting
+    line to the last 5 pulses only and widens its gate by 4 % of the PRI, so it follows the PRI as it
+    moves."""
+    chains: list[Chain] = []
+    while free.sum() >= 3 * p.min_pulses and n_found + len(chains) < p.max_trains:
+        tf = t[free]
+        edges = np.exp(np.arange(math.log(p.pri_min), math.log(p.pri_max), 0.05))
+        if edges.size < 3:
+            break
+        h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
+        centre = np.sqrt(edges[:-1] * edges[1:])
+        found = None
+        for i in np.argsort(-h)[:5]:
+            if h[i] < p.min_pulses:
+                break
+            found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma, memory=5,
+                                    max_miss=p.max_miss, min_pulses=3 * p.min_pulses, min_fill=p.min_fill,
+                                    slack=0.04 * float(centre[i]))
+            if found is not None:
+                break
+        if found is None:
+            break
+        chains.append(found)
+        free[found.index] = False
     return chains
 
 

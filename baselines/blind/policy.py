@@ -284,7 +284,7 @@ class CDIFPolicy(HistogramPolicy):
 class SDIFPolicy(HistogramPolicy):
     """`sdif`: Milojevic & Popovic's SDIF (1992) + sequence search."""
 
-    def __init__(self, x: float = 0.25, k: float = 0.3, **kw: Any):
+    def __init__(self, x: float = 0.1, k: float = 0.3, **kw: Any):
         super().__init__(**kw)
         self.detector = SDIF(x, k)
 

@@ -25,7 +25,7 @@ class Chain(NamedTuple):
 
 
 @numba.njit(cache=True)
-def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory):  # pragma: no cover - numba
+def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory, slack):  # pragma: no cover - numba
     n = t.size
     idx = np.empty(n, np.int64)
     ks = np.empty(n, np.int64)
@@ -61,7 +61,7 @@ def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory):  # pragma: no c
         else:
             pred = t[idx[0]] + pri * k
             unc = pri_unc
-        gate = 3.0 * sigma + unc * (k - ks[m - 1])
+        gate = 3.0 * sigma + (unc + slack) * (k - ks[m - 1])
         if pred - gate > t_end:
             break
         j = np.searchsorted(t, pred - gate)
@@ -98,7 +98,9 @@ def accept(chain: Chain, min_pulses: int, min_fill: float, chance: float = 0.0) 
 
 def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float, sigma: float, *,
                     n_seeds: int = 16, max_miss: int = 3, memory: int = 16, min_pulses: int = 6,
-                    min_fill: float = 0.8) -> Chain | None:
+                    min_fill: float = 0.8, slack: float = 0.0) -> Chain | None:
+    """(memory: how many recent pulses the predicting line is fitted to; a short memory and some
+    `slack` (a PRI change per pulse the gate allows) follow a modulated PRI.)"""
     """The longest acceptable train of PRI ~ `pri` (+- `pri_unc`) among the free pulses, or None.
 
     Seeds are the free pulses in the first 1.5 PRI after the first free pulse (a train present from
@@ -109,10 +111,11 @@ def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float,
     head = cand[t[cand] <= t[cand[0]] + 1.5 * pri + 3 * sigma][:n_seeds]
     rest = cand[np.linspace(0, cand.size - 1, n_seeds // 2).astype(np.int64)]
     density = cand.size / max(float(t[cand[-1]] - t[cand[0]]), 1e-300)
-    chance = float(-np.expm1(-density * 6.0 * sigma))  # a free pulse within the +-3 sigma gate
+    chance = float(-np.expm1(-density * 2 * (3.0 * sigma + slack)))  # a free pulse in the gate anyway
     best: Chain | None = None
     for seed in np.unique(np.concatenate([head, rest])):
-        idx, ks = _walk(t, free, int(seed), float(pri), float(pri_unc), float(sigma), max_miss, memory)
+        idx, ks = _walk(t, free, int(seed), float(pri), float(pri_unc), float(sigma), max_miss, memory,
+                        float(slack))
         chain = Chain(idx, ks, int(ks[-1]) + 1)
         if accept(chain, min_pulses, min_fill, chance) and (best is None or idx.size > best.index.size):
             best = chain

@@ -115,14 +115,26 @@ def test_windows_carry_labels_across():
 def test_pri_transform_suppresses_subharmonics():
     # Nishiguchi & Kobayashi's point (their 3-train example, our parameters): the difference histogram
     # has peaks at multiples of every PRI, the transform only at the PRIs themselves
-    toa, _, _ = pulses(*THREE, duration=3000, jitter=0.05, seed=5)
-    centres, mag, count, _ = pri_transform(toa, 5.0, 100.0, 0.1, 0.01, 0.05)
-    at = lambda x, arr: arr[np.argmin(np.abs(centres - x))]  # noqa: E731
-    for t in (13.0, 29.0, 47.0):
-        assert at(t, mag) > 0.8 * at(t, count)  # coherent at the PRI
-    for t in (26.0, 39.0, 58.0, 94.0):  # 2x13, 3x13, 2x29, 2x47
-        assert at(t, count) > 0.5 * 3000 / t  # the histogram has the multiple
-        assert at(t, mag) < 0.35 * at(t, count)  # the transform suppresses it
+    toa, _, _ = pulses([[13.3], [29.7], [47.1]], [1.0, 5.0, 11.0], duration=3000, jitter=0.05, seed=5)
+    centres, mag, count, _ = pri_transform(toa, 5.0, 100.0, 0.005, 0.01, 0.05)
+    peak = lambda x, arr: arr[np.abs(centres - x) <= 0.5].max() / (3000 / x)  # noqa: E731
+    for t in (13.3, 29.7, 47.1):
+        assert peak(t, mag) > 0.8  # coherent at the PRI: |D| ~ the train's number of intervals
+    for t in (26.6, 39.9, 59.4, 94.2):  # 2x13.3, 3x13.3, 2x29.7, 2x47.1
+        assert peak(t, count) > 0.8  # the histogram has the multiple
+        assert peak(t, mag) < 0.3  # the transform suppresses it
+
+
+def test_improved_pri_transform_survives_jitter():
+    # Nishiguchi & Kobayashi's other point: with jitter the original transform (disjoint bins, phases
+    # from t = 0) loses its peaks, the improved one (overlapping bins, shifted origins) keeps them
+    toa, _, _ = pulses([[13.3], [29.7], [47.1]], [1.0, 5.0, 11.0], duration=3000, jitter=0.3, seed=10)
+    for improved, lo, hi in ((True, 0.8, None), (False, None, 0.3)):
+        centres, mag, _, _ = pri_transform(toa, 5.0, 100.0, 0.005 if improved else 0.2, 0.01, 0.3, improved=improved)
+        for t in (13.3, 29.7, 47.1):
+            near = np.abs(centres - t) <= 1.0
+            peak = mag[near].max() / (3000 / t)  # against the train's number of intervals
+            assert (peak > lo) if improved else (peak < hi)
 
 
 def test_hdbscan_uses_amplitude_and_dbscan_runs():

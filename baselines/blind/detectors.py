@@ -50,6 +50,6 @@ class PRITransform:
         self.eps, self.alpha, self.beta, self.gamma = eps, alpha, beta, gamma
 
     def __call__(self, t: np.ndarray, sigma: float, pri_min: float, pri_max: float) -> Iterator[list[Candidate]]:
-        width = max(0.5 * sigma, pri_max / 5000)
+        width = pri_min * 1e-3  # the minimum spacing: bins are tau^2 / (8 D) apart (see bin_centres)
         yield pri_transform_candidates(t, pri_min, pri_max, width, eps=self.eps, sigma=sigma, alpha=self.alpha,
                                        beta=self.beta, gamma=self.gamma)

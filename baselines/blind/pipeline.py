@@ -74,7 +74,36 @@ def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Cha
         chains.append(found)
         free[found.index] = False
     chains.extend(agile_chains(t, free, p, len(chains)))
-    return chains
+    return stitch(t, chains)
+
+
+def stitch(t: np.ndarray, chains: list[Chain]) -> list[Chain]:
+    """Join a chain to one that ends where it starts (within 3 PRIs, not overlapping) with a mean PRI
+    within 10 %: a train the walk lost and found again, as happens where a modulated PRI crosses
+    another train's.  The joined chain counts its periods across the gap."""
+    out = sorted(chains, key=lambda c: float(t[c.index[0]]))
+    joined = True
+    while joined:
+        joined = False
+        for a in range(len(out)):
+            ca = out[a]
+            pa = (t[ca.index[-1]] - t[ca.index[0]]) / max(int(ca.k[-1] - ca.k[0]), 1)
+            for b in range(len(out)):
+                cb = out[b]
+                if b == a or cb.index[0] <= ca.index[-1]:
+                    continue
+                pb = (t[cb.index[-1]] - t[cb.index[0]]) / max(int(cb.k[-1] - cb.k[0]), 1)
+                gap = t[cb.index[0]] - t[ca.index[-1]]
+                if abs(pa - pb) <= 0.1 * pa and gap <= 3.5 * pa:
+                    steps = max(1, round(gap / pa))
+                    k = np.concatenate([ca.k, cb.k - cb.k[0] + ca.k[-1] + steps])
+                    out[a] = Chain(np.concatenate([ca.index, cb.index]), k, int(k[-1]) + 1)
+                    del out[b]
+                    joined = True
+                    break
+            if joined:
+                break
+    return out
 
 
 def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int) -> list[Chain]:

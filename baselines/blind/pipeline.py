@@ -198,7 +198,8 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
             labels[chains[i].index] = len(models)
         c = chains[g.chains[0]]
         if g.origins.size > 1:
-            model, phases = stagger_model(g.frame, g.origins, p.sigma)
+            scatter = max([p.sigma] + [line_fit(t[chains[i].index], chains[i].k).resid_std for i in g.chains])
+            model, phases = stagger_model(g.frame, g.origins, scatter)
             models.append(model)
             frame = model.period if model.kind == "constant" else g.frame
             first = min(float(t[chains[i].index[0]]) for i in g.chains) - 1.5 * frame

@@ -59,14 +59,15 @@ def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIM
 
     Sub-trains on one phase (pieces of one lattice) are merged; if the phases all lie on a lattice
     F / n (a constant train extracted in pieces, some perhaps missing) the model is constant F / n;
-    otherwise a stagger whose levels are the gaps between the phases, in emission order."""
+    otherwise a stagger whose levels are the gaps between the phases, in emission order.  `sigma`:
+    the sub-trains' TOA scatter (their largest residual spread, or the TOA noise)."""
     tol = 4 * sigma + 1e-3 * frame
     phases = _circular_groups(np.asarray(origins, dtype=np.float64), frame, tol)
     levels = np.diff(np.concatenate([phases, [phases[0] + frame]]))
     n = max(1, round(frame / float(levels.min())))
     sub = frame / n
     off = np.mod(phases - phases[0] + tol, sub) - tol  # each phase's distance from the F/n lattice
-    if np.all(np.abs(off) <= tol):
+    if n <= 2 * phases.size and np.all(np.abs(off) <= tol):  # at most half the sub-trains missing
         return PRIModel("constant", sub), phases[:1]
     return PRIModel("stagger", frame / levels.size, tuple(float(v) for v in levels)), phases
 

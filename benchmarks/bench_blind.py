@@ -27,10 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.metrics import matched_labels
-from deint_env.modulation import modulation_scores, true_models
+from deint_env.modulation import episode_modulation_scores
 from deint_env.policies import make_policy
-from deint_env.runner import _label_of_source, play, reference_accuracies
+from deint_env.runner import play, reference_accuracies
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.suites import load_suite
@@ -72,10 +71,8 @@ def blind_v0(methods: list[str], seeds: int) -> None:
                 link.append(res.metrics["link_accuracy"])
                 vm.append(res.metrics["v_measure"])
                 right += pol.trains_found == ep.truth.n_sources
-                lut = matched_labels(res.labels, ep.source, ep.n_labels)
-                mapping = _label_of_source(res.labels, lut, ep.truth.n_sources, ep.n_labels)
-                kind.append(modulation_scores(pol.modulations(), true_models(entry.spec, ep.truth.period),
-                                              mapping).kind_accuracy)
+                kind.append(episode_modulation_scores(pol.modulations(), entry.spec, ep.truth.period, res.labels,
+                                                      ep.source, ep.n_labels).kind_accuracy)
             cells.append(f"{m} {np.mean(link):.3f} ({np.mean(link) / np.mean(genie):.3f}) {right}/{len(eps)} "
                          f"V {np.mean(vm):.3f} const {np.nanmean(kind):.2f}")
         print(f"{entry.name:24s} genie {np.mean(genie):.3f} | " + " | ".join(cells))
@@ -96,12 +93,10 @@ def agile_blind(methods: list[str], seeds: int) -> None:
                 pol = make_policy(m)
                 res = play(pol, ep, clustering=False)
                 link.append(res.metrics["link_accuracy"])
-                lut = matched_labels(res.labels, ep.source, ep.n_labels)
-                mapping = _label_of_source(res.labels, lut, ep.truth.n_sources, ep.n_labels)
-                truth = true_models(spec, ep.truth.period)
-                agile = [i for i, t in enumerate(truth) if t.kind != "constant"]  # the modulated sources alone
-                scores.append(modulation_scores(pol.modulations(), [truth[i] for i in agile], mapping[agile]))
-                found.append(scores[-1].n_scored / max(len(agile), 1))
+                scores.append(episode_modulation_scores(pol.modulations(), spec, ep.truth.period, res.labels,
+                                                        ep.source, ep.n_labels, modulated_only=True))
+                n_mod = sum(s.modulation.kind != "constant" for s in spec.sources)
+                found.append(scores[-1].n_scored / max(n_mod, 1))
             mean = lambda f: float(np.nanmean([getattr(x, f) for x in scores]))  # noqa: E731
             with np.errstate(all="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)

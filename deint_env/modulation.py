@@ -110,3 +110,22 @@ def modulation_scores(found: Sequence[PRIModel | None], truth: Sequence[PRIModel
 
     return ModulationScore(avg([float(r) for r in right]), len(right), avg(period), avg(levels), avg(depth),
                            avg(cycle))
+
+
+def episode_modulation_scores(found: Sequence[PRIModel | None], spec: ScenarioSpec, period: np.ndarray,
+                              labels: np.ndarray, source: np.ndarray, n_labels: int,
+                              modulated_only: bool = False) -> ModulationScore:
+    """`modulation_scores` for one played episode: a policy's models per label (`modulations()`),
+    the scenario and its drawn periods (`truth.period`), and the labels it gave, matched to the
+    sources by the Hungarian matching of the blind metrics.  `modulated_only` scores the sources whose
+    PRI is not constant alone."""
+    from deint_env.metrics import matched_labels
+
+    truth = true_models(spec, period)
+    mapped = matched_labels(np.asarray(labels), np.asarray(source), n_labels)
+    label_of_source = np.full(len(truth), -1)
+    for lab, src in zip(np.asarray(labels).tolist(), mapped.tolist()):
+        if src < len(truth) and lab < n_labels:
+            label_of_source[src] = lab
+    keep = [i for i, t in enumerate(truth) if not modulated_only or t.kind != "constant"]
+    return modulation_scores(found, [truth[i] for i in keep], label_of_source[keep])

@@ -231,3 +231,25 @@ def test_pri_model_fits():
     assert model.kind == "constant" and model.period == pytest.approx(10.0) and phases.size == 1
     model, phases = stagger_model(30.0, np.array([2.0, 14.0]), 0.05)
     assert model.kind == "stagger" and model.levels == pytest.approx((12.0, 18.0))
+
+
+def test_modulation_identified_on_a_simulated_stagger():
+    # agile-v0's two-level stagger made blind: the stagger is one train, its model and levels right
+    from deint_env.modulation import episode_modulation_scores
+    from deint_env.scenario import ScenarioSpec
+    from deint_env.simulate import simulate
+    from deint_env.suites import find_entry
+
+    d = find_entry("agile-v0/agile-stagger2").spec.to_dict()
+    d.update(priors={"kind": "none"}, blind=True, label_budget=8)
+    spec = ScenarioSpec.from_dict(d)
+    ep = simulate(spec, 1000000)
+    policy = make_policy("cdif")
+    res = play(policy, ep, clustering=False)
+    assert policy.trains_found == 3
+    s = episode_modulation_scores(policy.modulations(), spec, ep.truth.period, res.labels, ep.source, ep.n_labels)
+    assert s.n_scored == 3 and s.kind_accuracy == 1.0
+    assert s.level_rel_error < 0.01 and s.period_rel_error < 1e-3
+    only = episode_modulation_scores(policy.modulations(), spec, ep.truth.period, res.labels, ep.source,
+                                     ep.n_labels, modulated_only=True)
+    assert only.n_scored == 1 and only.kind_accuracy == 1.0

@@ -69,7 +69,10 @@ def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIM
     off = np.mod(phases - phases[0] + tol, sub) - tol  # each phase's distance from the F/n lattice
     if n <= 2 * phases.size and np.all(np.abs(off) <= tol):  # at most half the sub-trains missing
         return PRIModel("constant", sub), phases[:1]
-    return PRIModel("stagger", frame / levels.size, tuple(float(v) for v in levels)), phases
+    # sub-trains found at a multiple of the frame repeat their levels: keep one cycle
+    m = levels.size
+    cycle = next(d for d in range(1, m + 1) if m % d == 0 and np.all(np.abs(levels - np.roll(levels, d)) <= 2 * tol))
+    return PRIModel("stagger", frame / m, tuple(float(v) for v in levels[:cycle])), phases
 
 
 def _sine_fit(n: np.ndarray, d: np.ndarray, max_cycle: float) -> tuple[float, float, float]:

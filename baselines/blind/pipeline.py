@@ -74,12 +74,20 @@ def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Cha
         chains.append(found)
         free[found.index] = False
     chains.extend(agile_chains(t, free, p, len(chains)))
-    return stitch(t, chains)
+    return stitch(t, chains, p.sigma)
 
 
-def stitch(t: np.ndarray, chains: list[Chain]) -> list[Chain]:
-    """Join a chain to one that ends where it starts (within 3 PRIs, not overlapping) with a mean PRI
-    within 10 %: a train the walk lost and found again, as happens where a modulated PRI crosses
+def _edge_pri(t: np.ndarray, c: Chain, last: bool) -> float:
+    """The PRI at one end of a chain: its last (or first) three pulses' span per period."""
+    i = c.index[-3:] if last else c.index[:3]
+    k = c.k[-3:] if last else c.k[:3]
+    return float((t[i[-1]] - t[i[0]]) / max(int(k[-1] - k[0]), 1))
+
+
+def stitch(t: np.ndarray, chains: list[Chain], sigma: float) -> list[Chain]:
+    """Join a chain to one that starts where it ends: not overlapping, the PRIs at the junction within
+    5 %, and the second chain's first pulse where the first chain's end predicts it (+-3 sigma plus
+    5 % of a PRI per step): a train the walk lost and found again, as where a modulated PRI crosses
     another train's.  The joined chain counts its periods across the gap."""
     out = sorted(chains, key=lambda c: float(t[c.index[0]]))
     joined = True
@@ -87,15 +95,17 @@ def stitch(t: np.ndarray, chains: list[Chain]) -> list[Chain]:
         joined = False
         for a in range(len(out)):
             ca = out[a]
-            pa = (t[ca.index[-1]] - t[ca.index[0]]) / max(int(ca.k[-1] - ca.k[0]), 1)
+            if ca.index.size < 3:
+                continue
+            pa = _edge_pri(t, ca, last=True)
             for b in range(len(out)):
                 cb = out[b]
-                if b == a or cb.index[0] <= ca.index[-1]:
+                if b == a or cb.index.size < 3 or cb.index[0] <= ca.index[-1]:
                     continue
-                pb = (t[cb.index[-1]] - t[cb.index[0]]) / max(int(cb.k[-1] - cb.k[0]), 1)
-                gap = t[cb.index[0]] - t[ca.index[-1]]
-                if abs(pa - pb) <= 0.1 * pa and gap <= 3.5 * pa:
-                    steps = max(1, round(gap / pa))
+                pb = _edge_pri(t, cb, last=False)
+                gap = float(t[cb.index[0]] - t[ca.index[-1]])
+                steps = max(1, round(gap / pa))
+                if abs(pa - pb) <= 0.05 * pa and steps <= 4 and abs(gap - steps * pa) <= 3 * sigma + 0.05 * pa * steps:
                     k = np.concatenate([ca.k, cb.k - cb.k[0] + ca.k[-1] + steps])
                     out[a] = Chain(np.concatenate([ca.index, cb.index]), k, int(k[-1]) + 1)
                     del out[b]
@@ -208,7 +218,9 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
         else:
             model = single_train_model(t[c.index], c.k, p.sigma)
             models.append(model)
-            sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if model.kind == "constant" else t[c.index]
+            # a lattice only for a train that sits on one (a joined or modulated train: its own pulses)
+            on_lattice = model.kind == "constant" and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
+            sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if on_lattice else t[c.index]
         schedules.append(np.sort(sched[(sched >= lo) & (sched <= hi)]))
     if align and schedules:
         src = np.concatenate([np.full(s.size, i) for i, s in enumerate(schedules)])

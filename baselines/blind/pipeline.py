@@ -4,8 +4,11 @@
    the sequence search tries them smallest first and the first acceptable train is removed; then
    detection starts again on the pulses left (the loop of Mardia and of Milojevic & Popovic), until
    no candidate gives a train.
-2. Trains of one period (within 4 standard deviations of their line fits) are sub-trains of one
-   stagger (or a constant train extracted at a multiple of its PRI) and become one train.
+   Then modulated trains are looked for among the pulses left (`agile_chains`), and chains the walk
+   lost and found again are joined (`stitch`).
+2. Trains whose periods are multiples of one another (within 4 standard deviations of their line
+   fits) are sub-trains of one stagger (or a constant train extracted in pieces at multiples of its
+   PRI) and become one train (`group_chains`, `pri_models.stagger_model`).
 3. Re-association (ours; `align=False` skips it): the greedy walks settle each pulse once, so where
    trains cross a pulse may have gone to the wrong one.  Each train's estimated emission schedule
    (its fitted lattice, or its own pulses for a modulated train) is extended over the window and the

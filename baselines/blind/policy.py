@@ -45,6 +45,7 @@ class BlindWindowPolicy:
         self.window = _check_window(window)
         self.lag = self.window - 1
         self._features: dict[str, np.ndarray] | None = None
+        self._sigma_used = 0.0  # the TOA noise the last window was deinterleaved with
 
     def attach_features(self, features: dict[str, np.ndarray] | None) -> None:
         """Pulse descriptors besides TOA and amplitude (a TDC file's frequency, pulse width, angle of
@@ -166,8 +167,6 @@ class BlindWindowPolicy:
             if old.kind != "constant" or abs(steps - round(steps)) * frame <= 4 * sigma + 0.002 * old.period * steps:
                 return j
         return None
-
-    _sigma_used = 0.0
 
 
 class HistogramPolicy(BlindWindowPolicy):

@@ -94,7 +94,7 @@ def test_stagger_is_one_train_with_its_levels(name):
 
 def test_unknown_jitter_is_measured():
     # no jitter in the priors (as `deint label` without priors): sigma is measured from the trains
-    toa, src, _ = pulses(*THREE, duration=3000, jitter=0.3, seed=3)
+    toa, src, _ = pulses(*THREE, duration=1500, jitter=0.3, seed=3)
     ep = episode(toa, src, jitter=0.0)
     policy = make_policy("cdif")
     res = play(policy, ep, clustering=False)

@@ -6,7 +6,7 @@
 
 from deint_env.policies import Limits, PolicyInfo
 
-ANCHORED = ("anchored",)
+ANCHORED, BLIND = ("anchored",), ("blind",)
 
 POLICIES = (
     PolicyInfo("random", "baselines.floors:RandomPolicy", description="uniform random labels (floor)"),
@@ -38,4 +38,14 @@ POLICIES = (
     PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=("blind",),
                description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name, runs that "
                            "code), labelling windows of `window` pulses"),
+    PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND,
+               description="blind: Mardia's CDIF histogram (1989) + sequence search + re-association (window=1000)"),
+    PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND,
+               description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association"),
+    PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND,
+               description="blind: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search"),
+    PolicyInfo("dbscan", "baselines.blind.clustering:DBSCANPolicy", modes=BLIND,
+               description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)"),
+    PolicyInfo("hdbscan", "baselines.blind.clustering:HDBSCANPolicy", modes=BLIND,
+               description="blind: scikit-learn HDBSCAN on pulse descriptors (the TDC baseline's method)"),
 )

@@ -146,7 +146,8 @@ def _add_label(sub) -> None:
         description="Label every pulse of PULSES.csv with a policy and write LABELS.csv (toa,label; "
                     "label -1 = spurious).  The policy sees only the pulses and the priors, never the file's "
                     "source columns.  Priors come from a priors file, or from --prior-periods (phases "
-                    "unknown), or --n-sources alone (blind: N labels, no priors).  `genie` labels from the "
+                    "unknown), or --n-sources alone (blind: N labels, no priors); a blind deinterleaver (cdif, sdif, "
+                    "pri-transform, dbscan, hdbscan) runs with none (32 labels).  `genie` labels from the "
                     "periods and phases in the priors file as if they were the truth: give it the file of "
                     "`deint simulate --true-priors-out` to get the oracle labelling.  A .h5/.hdf5 input or "
                     "output is a Turing Deinterleaving Challenge file (blind: give --n-sources N; a `tdc` "
@@ -166,6 +167,16 @@ def _add_label(sub) -> None:
     p.set_defaults(func=cmd_label)
 
 
+BLIND_LABELS = 32  # the label budget of `deint label` with a blind policy and no priors
+
+
+def _finds_own_trains(spec: str) -> bool:
+    """Whether the policy plays only the blind mode (registry `modes`): it runs without priors."""
+    from deint_env.policies import parse_policy_spec, policy_info
+
+    return policy_info(parse_policy_spec(spec)[0]).modes == ("blind",)
+
+
 def _cli_priors(args: argparse.Namespace):
     from deint_env.episode import Priors
 
@@ -177,6 +188,8 @@ def _cli_priors(args: argparse.Namespace):
         raise DeintError(f"--n-sources={args.n_sources} is invalid: an integer >= 1")
     if args.prior_periods is None:
         if args.n_sources is None:
+            if _finds_own_trains(args.policy):  # a blind deinterleaver needs no priors: BLIND_LABELS tracks
+                return Priors.from_json_dict({"blind": True, "label_budget": BLIND_LABELS}, where="blind policy")
             raise DeintError("the policy needs priors: give --priors PRIORS.json, or --prior-periods a,b,... "
                              "(or --n-sources N for blind labelling)")
         return Priors.from_json_dict({"blind": True, "label_budget": args.n_sources}, where="--n-sources")
@@ -226,6 +239,8 @@ def cmd_label(args: argparse.Namespace) -> int:
         episode = train.episode(priors, name=Path(args.pulses).name)
         if hasattr(policy, "attach_data"):
             policy.attach_data(train.model_input())
+        if hasattr(policy, "attach_features"):  # a blind deinterleaver: the file's other descriptors
+            policy.attach_features(train.features)
     else:
         episode = formats.read_pulses(args.pulses, priors)
     t0 = time.perf_counter()

@@ -1,0 +1,89 @@
+"""Density clustering of pulse descriptors: scikit-learn's DBSCAN and HDBSCAN, the method of the
+Turing Deinterleaving Challenge's baseline.
+
+Descriptors per pulse: every column the pulses have besides the TOA (amplitude; a TDC file's
+frequency, pulse width, angle of arrival) and, from the TOAs, the differences to the previous and
+the next pulse (the TOA itself orders pulses but does not group them).  Each column is standardised
+(median and interquartile range, robust to outliers).  A cluster's PRI estimate is the median of the
+differences between its successive pulses, its model constant; noise (-1) is spurious.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines.blind.descriptors import standardised
+from baselines.blind.pipeline import Deinterleaving, FoundTrain
+from baselines.blind.policy import BlindWindowPolicy
+from deint_env.modulation import PRIModel
+
+
+def descriptors(toa: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """(n, d) standardised descriptors: extra columns, then the TOA differences to both neighbours."""
+    gaps = np.diff(toa)
+    fill = float(np.median(gaps)) if gaps.size else 0.0
+    return standardised({**(extra or {}), "dt_prev": np.concatenate([[fill], gaps]),
+                         "dt_next": np.concatenate([gaps, [fill]])})
+
+
+def cluster_result(toa: np.ndarray, ids: np.ndarray) -> Deinterleaving:
+    """Clusters as trains (ids numbered 0.. in first-pulse order, -1 = spurious)."""
+    labels = np.full(toa.size, -1, dtype=np.int64)
+    trains = []
+    real = np.unique(ids[ids >= 0])
+    firsts = sorted(real.tolist(), key=lambda c: int(np.flatnonzero(ids == c)[0]))
+    for n, c in enumerate(firsts):
+        pulses = np.flatnonzero(ids == c)
+        labels[pulses] = n
+        gaps = np.diff(toa[pulses])
+        period = float(np.median(gaps)) if gaps.size else float("nan")
+        trains.append(FoundTrain(pulses, PRIModel("constant", period), float(toa[pulses[0]]), toa[pulses]))
+    return Deinterleaving(labels, trains)
+
+
+class ClusterPolicy(BlindWindowPolicy):
+    """Base of `dbscan` / `hdbscan`: cluster each window's descriptors (with `attach_features`, also
+    columns such as a TDC file's frequency or angle of arrival)."""
+
+    def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
+        extra: dict[str, np.ndarray] = {}
+        if amplitude is not None:
+            extra["amplitude"] = amplitude
+        extra.update(self.window_features(toa.size))
+        return cluster_result(toa, self.cluster(descriptors(toa, extra)))
+
+    def cluster(self, x: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class DBSCANPolicy(ClusterPolicy):
+    """`dbscan`: scikit-learn's DBSCAN (eps in standardised units, min_samples)."""
+
+    def __init__(self, eps: float = 0.1, min_samples: int = 5, window: int = 1000):
+        super().__init__(window)
+        if not eps > 0 or not (isinstance(min_samples, int) and min_samples >= 1):
+            raise ValueError(f"eps={eps!r}, min_samples={min_samples!r}: eps > 0 and min_samples an integer >= 1")
+        self.eps, self.min_samples = float(eps), min_samples
+
+    def cluster(self, x: np.ndarray) -> np.ndarray:
+        from sklearn.cluster import DBSCAN
+
+        return DBSCAN(eps=self.eps, min_samples=self.min_samples).fit_predict(x)
+
+
+class HDBSCANPolicy(ClusterPolicy):
+    """`hdbscan`: scikit-learn's HDBSCAN (min_cluster_size, min_samples)."""
+
+    def __init__(self, min_cluster_size: int = 20, min_samples: int | None = None, window: int = 1000):
+        super().__init__(window)
+        if not (isinstance(min_cluster_size, int) and min_cluster_size >= 2):
+            raise ValueError(f"min_cluster_size={min_cluster_size!r} is invalid: an integer >= 2")
+        self.min_cluster_size, self.min_samples = min_cluster_size, min_samples
+
+    def cluster(self, x: np.ndarray) -> np.ndarray:
+        from sklearn.cluster import HDBSCAN
+
+        if x.shape[0] < 2:
+            return np.full(x.shape[0], -1)
+        return HDBSCAN(min_cluster_size=min(self.min_cluster_size, x.shape[0]),
+                       min_samples=self.min_samples, copy=True).fit_predict(x)

@@ -1,0 +1,237 @@
+"""Blind deinterleaving of one window of pulses: detect a PRI, extract its train, repeat.
+
+1. A detector (CDIF, SDIF or the PRI transform) proposes PRI candidates from the pulses still free;
+   the sequence search tries them smallest first and the first acceptable train is removed; then
+   detection starts again on the pulses left (the loop of Mardia and of Milojevic & Popovic), until
+   no candidate gives a train.
+   Then modulated trains are looked for among the pulses left (`agile_chains`), and chains the walk
+   lost and found again are joined (`stitch`).
+2. Trains whose periods are multiples of one another (within 4 standard deviations of their line
+   fits) are sub-trains of one stagger (or a constant train extracted in pieces at multiples of its
+   PRI) and become one train (`group_chains`, `pri_models.stagger_model`).
+3. Re-association (ours; `align=False` skips it): the greedy walks settle each pulse once, so where
+   trains cross a pulse may have gone to the wrong one.  Each train's estimated emission schedule
+   (its fitted lattice, or its own pulses for a modulated train) is extended over the window and the
+   pulses are aligned to the union of the schedules by the MAP alignment `genie` uses with the true
+   schedule (`baselines.genie.genie_labels`), here with estimated parameters only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Iterable, NamedTuple
+
+import numpy as np
+
+from baselines.blind.histograms import Candidate
+from baselines.blind.pri_models import line_fit, single_train_model, stagger_model
+from baselines.blind.search import Chain, sequence_search
+from deint_env.oracle import genie_labels
+from deint_env.modulation import PRIModel
+
+# detector(free toas, sigma, pri_min, pri_max) -> candidate lists, one per difference level
+Detector = Callable[[np.ndarray, float, float, float], Iterable[list[Candidate]]]
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    sigma: float  # TOA noise std (known, or estimated by the policy)
+    pri_min: float
+    pri_max: float
+    min_pulses: int = 6
+    min_fill: float = 0.8
+    max_miss: int = 3
+    max_trains: int = 32
+    missing_prob: float = 0.0  # for the re-association (the priors' channel statistics)
+    spurious_rate: float = 0.0  # spurious pulses per received pulse, for the re-association
+
+
+class FoundTrain(NamedTuple):
+    pulses: np.ndarray  # indices into the window, time-ordered
+    model: PRIModel
+    phase: float  # estimated first emission in the window
+    schedule: np.ndarray  # estimated emission times over the window
+
+
+class Deinterleaving(NamedTuple):
+    labels: np.ndarray  # train number per pulse, -1 = spurious
+    trains: list[FoundTrain]
+
+
+def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Chain]:
+    free = np.ones(t.size, dtype=bool)
+    chains: list[Chain] = []
+    while free.sum() >= p.min_pulses and len(chains) < p.max_trains:
+        found = None
+        for level in detect(t[free], p.sigma, p.pri_min, p.pri_max):
+            for cand in sorted(level, key=lambda c: c.pri):
+                found = sequence_search(t, free, cand.pri, cand.unc, p.sigma, max_miss=p.max_miss,
+                                        min_pulses=p.min_pulses, min_fill=p.min_fill)
+                if found is not None:
+                    break
+            if found is not None:
+                break
+        if found is None:
+            break
+        chains.append(found)
+        free[found.index] = False
+    chains.extend(agile_chains(t, free, p, len(chains)))
+    return stitch(t, chains, p.sigma)
+
+
+def _edge_pri(t: np.ndarray, c: Chain, last: bool) -> float:
+    """The PRI at one end of a chain: its last (or first) three pulses' span per period."""
+    i = c.index[-3:] if last else c.index[:3]
+    k = c.k[-3:] if last else c.k[:3]
+    return float((t[i[-1]] - t[i[0]]) / max(int(k[-1] - k[0]), 1))
+
+
+def stitch(t: np.ndarray, chains: list[Chain], sigma: float) -> list[Chain]:
+    """Join a chain to one that starts where it ends: not overlapping, the PRIs at the junction within
+    5 %, and the second chain's first pulse where the first chain's end predicts it (+-3 sigma plus
+    5 % of a PRI per step): a train the walk lost and found again, as where a modulated PRI crosses
+    another train's.  The joined chain counts its periods across the gap."""
+    out = sorted(chains, key=lambda c: float(t[c.index[0]]))
+    joined = True
+    while joined:
+        joined = False
+        for a in range(len(out)):
+            ca = out[a]
+            if ca.index.size < 3:
+                continue
+            pa = _edge_pri(t, ca, last=True)
+            for b in range(len(out)):
+                cb = out[b]
+                if b == a or cb.index.size < 3 or cb.index[0] <= ca.index[-1]:
+                    continue
+                pb = _edge_pri(t, cb, last=False)
+                gap = float(t[cb.index[0]] - t[ca.index[-1]])
+                steps = max(1, round(gap / pa))
+                if abs(pa - pb) <= 0.05 * pa and steps <= 4 and abs(gap - steps * pa) <= 3 * sigma + 0.05 * pa * steps:
+                    k = np.concatenate([ca.k, cb.k - cb.k[0] + ca.k[-1] + steps])
+                    out[a] = Chain(np.concatenate([ca.index, cb.index]), k, int(k[-1]) + 1)
+                    del out[b]
+                    joined = True
+                    break
+            if joined:
+                break
+    return out
+
+
+def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int) -> list[Chain]:
+    """Modulated trains (sliding, wobulated) among the pulses the constant-PRI loop left: their
+    differences spread over a band of PRIs, so the candidates are the peaks of a coarse histogram
+    (bins 5 % of the PRI wide, the first three difference levels), and the walk fits its predicting
+    line to the last 5 pulses only and widens its gate by 4 % of the PRI, so it follows the PRI as it
+    moves."""
+    chains: list[Chain] = []
+    while free.sum() >= 3 * p.min_pulses and n_found + len(chains) < p.max_trains:
+        tf = t[free]
+        edges = np.exp(np.arange(math.log(p.pri_min), math.log(p.pri_max), 0.05))
+        if edges.size < 3:
+            break
+        h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
+        centre = np.sqrt(edges[:-1] * edges[1:])
+        found = None
+        for i in np.argsort(-h)[:5]:
+            if h[i] < p.min_pulses:
+                break
+            found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma, memory=5,
+                                    max_miss=p.max_miss, min_pulses=3 * p.min_pulses, min_fill=p.min_fill,
+                                    slack=0.04 * float(centre[i]))
+            if found is not None:
+                break
+        if found is None:
+            break
+        chains.append(found)
+        free[found.index] = False
+    return chains
+
+
+class Group(NamedTuple):
+    """Chains that are one train: a frame period F (a multiple of every chain's period) and the phase
+    of every sub-train of period F they hold (a chain of period F / n holds n)."""
+
+    chains: list[int]
+    frame: float
+    origins: np.ndarray
+
+
+def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
+    """Chains whose periods are (integer multiples of) one another within 4 combined standard
+    deviations are one train: the sub-trains of a stagger, or a constant train extracted in pieces at
+    multiples of its PRI.  Greedy, by increasing period."""
+    fits = [line_fit(t[c.index], c.k) for c in chains]
+    members: list[list[int]] = []
+    for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
+        f = fits[i]
+        for g in members:
+            h = fits[g[0]]  # the group's smallest period
+            n = round(f.period / h.period)
+            if n >= 1 and abs(f.period - n * h.period) <= 4 * math.hypot(f.period_std, n * h.period_std) \
+                    + 1e-9 * f.period:
+                g.append(i)
+                break
+        else:
+            members.append([i])
+    groups = []
+    for g in members:
+        big = max(fits[i].period for i in g)
+        mult = [max(1, round(big / fits[i].period)) for i in g]
+        est = np.array([m * fits[i].period for i, m in zip(g, mult)])
+        w = np.array([1.0 / max(m * fits[i].period_std, 1e-12) ** 2 for i, m in zip(g, mult)])
+        frame = float(np.sum(w * est) / w.sum())
+        origins = np.concatenate([fits[i].origin + fits[i].period * np.arange(m) for i, m in zip(g, mult)])
+        groups.append(Group(g, frame, origins))
+    return groups
+
+
+def _lattice(origin: float, period: float, t0: float, t1: float) -> np.ndarray:
+    k0 = math.floor((t0 - origin) / period) - 1
+    k1 = math.ceil((t1 - origin) / period) + 1
+    return origin + period * np.arange(k0, k1 + 1)
+
+
+def _span(t: np.ndarray, c: Chain, period: float) -> tuple[float, float]:
+    """A train's schedule covers its own span and 1.5 periods either side (emitters come and go)."""
+    return float(t[c.index[0]]) - 1.5 * period, float(t[c.index[-1]]) + 1.5 * period
+
+
+def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool = True) -> Deinterleaving:
+    t = np.ascontiguousarray(t, dtype=np.float64)
+    labels = np.full(t.size, -1, dtype=np.int64)
+    if t.size == 0:
+        return Deinterleaving(labels, [])
+    chains = extract_chains(t, detect, p)
+    lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
+    models, schedules = [], []
+    for g in group_chains(t, chains):
+        for i in g.chains:
+            labels[chains[i].index] = len(models)
+        c = chains[g.chains[0]]
+        if g.origins.size > 1:
+            scatter = max([p.sigma] + [line_fit(t[chains[i].index], chains[i].k).resid_std for i in g.chains])
+            model, phases = stagger_model(g.frame, g.origins, scatter)
+            models.append(model)
+            frame = model.period if model.kind == "constant" else g.frame
+            first = min(float(t[chains[i].index[0]]) for i in g.chains) - 1.5 * frame
+            last = max(float(t[chains[i].index[-1]]) for i in g.chains) + 1.5 * frame
+            sched = np.concatenate([_lattice(o, frame, first, last) for o in phases])
+        else:
+            model = single_train_model(t[c.index], c.k, p.sigma)
+            models.append(model)
+            # a lattice only for a train that sits on one (a joined or modulated train: its own pulses)
+            on_lattice = model.kind == "constant" and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
+            sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if on_lattice else t[c.index]
+        schedules.append(np.sort(sched[(sched >= lo) & (sched <= hi)]))
+    if align and schedules:
+        src = np.concatenate([np.full(s.size, i) for i, s in enumerate(schedules)])
+        span = max(hi - lo, 1e-300)
+        labels = genie_labels(t, np.concatenate(schedules), src, max(p.sigma, 1e-9 * span), p.missing_prob,
+                              p.spurious_rate * t.size / span, 0.0).astype(np.int64)
+    trains = []
+    for i, (m, s) in enumerate(zip(models, schedules)):
+        pulses = np.flatnonzero(labels == i)
+        trains.append(FoundTrain(pulses, m, float(t[pulses[0]]) if pulses.size else math.nan, s))
+    return Deinterleaving(labels, trains)

@@ -1,0 +1,293 @@
+"""The blind deinterleavers as policies: windowed batch decisions with a declared lag.
+
+A policy buffers `window` pulses (lag window - 1), deinterleaves the window as a batch when its last
+pulse arrives (the last, shorter window at the first padding step) and emits the window's labels one
+per step.  Trains are carried across windows: a train of a new window keeps the label of the previous
+window's train whose PRI it matches and whose lattice its first pulse continues; otherwise it takes
+the label least recently used (a new track: the link to its first pulse is "none" only if the label
+is fresh, so at most one link is lost per re-used label).  Trains beyond the label budget are labelled
+spurious (the smallest trains first).
+
+Without a known TOA noise (priors.jitter_std = 0, e.g. `deint label` with no priors or a TDC file)
+the noise is measured first, from trial deinterleavings with a growing sigma
+(`HistogramPolicy._search_sigma`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from baselines.blind.descriptors import standardised
+from baselines.blind.detectors import CDIF, SDIF, PRITransform
+from baselines.blind.pipeline import Deinterleaving, Detector, SearchParams, deinterleave
+from baselines.blind.pri_models import line_fit
+from deint_env.episode import Priors
+from deint_env.errors import DeintError, NotApplicable
+from deint_env.modulation import PRIModel
+from baselines.tdc_adapter import MAX_WINDOW
+
+
+def _check_window(window: object) -> int:
+    if isinstance(window, bool) or not isinstance(window, int) or not 2 <= window <= MAX_WINDOW:
+        raise ValueError(f"window={window!r} is invalid: an integer in [2, {MAX_WINDOW}] (pulses per batch; the "
+                         f"lag is window - 1)")
+    return window
+
+
+class BlindWindowPolicy:
+    """Base: buffering, emission at lag window - 1, labels carried across windows, estimates."""
+
+    def __init__(self, window: int = 1000):
+        self.window = _check_window(window)
+        self.lag = self.window - 1
+        self._features: dict[str, np.ndarray] | None = None
+        self._sigma_used = 0.0  # the TOA noise the last window was deinterleaved with
+
+    def attach_features(self, features: dict[str, np.ndarray] | None) -> None:
+        """Pulse descriptors besides TOA and amplitude (a TDC file's frequency, pulse width, angle of
+        arrival) for the next episodes, one value per pulse; a window reads only its own pulses'."""
+        self._features = None if not features else {k: np.asarray(v, dtype=np.float64) for k, v in
+                                                     features.items()}
+
+    def window_features(self, n: int) -> dict[str, np.ndarray]:
+        """The attached descriptors of the window being labelled (its n pulses)."""
+        if self._features is None:
+            return {}
+        done = self._seen - n
+        return {k: v[done:done + n] for k, v in self._features.items()}
+
+    # ---- to implement ------------------------------------------------------------------------------
+    def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
+        raise NotImplementedError
+
+    # ---- protocol ----------------------------------------------------------------------------------
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        if not priors.blind:
+            raise NotApplicable("blind deinterleavers find their own trains: blind scenarios only (no prior tracks)")
+        self.priors = priors
+        self.n_labels = priors.n_labels
+        n = info.get("n_pulses")
+        if self._features is not None and n is not None:
+            bad = [k for k, v in self._features.items() if v.shape != (n,)]
+            if bad:
+                raise DeintError(f"attached descriptor {bad[0]} has {self._features[bad[0]].size} values for an "
+                                 f"episode of {n} pulses")
+        self._amp = bool(info.get("has_amplitude", False))
+        self._toa: list[float] = []
+        self._amps: list[float] = []
+        self._seen = 0
+        self._ready: list[int] = []
+        self._next = 0
+        self._step = 0
+        self._last_used = np.full(self.n_labels, -1, dtype=np.int64)  # window number of each label's last use
+        self._tracks: list[tuple[PRIModel, float] | None] = [None] * self.n_labels  # (model, last pulse)
+        self._phase = np.full(self.n_labels, np.nan)
+        self._windows = 0
+        self.trains_found = 0  # trains found in the last window (the whole episode when it fits one)
+        self.trains_per_window: list[int] = []
+
+    def act(self, obs: dict[str, Any]) -> int:
+        if int(obs["valid"]):
+            self._toa.append(float(obs["toa"][0]))
+            self._seen += 1
+            if self._amp:
+                self._amps.append(float(obs["amplitude"][0]))
+            if len(self._toa) == self.window:
+                self._flush()
+        else:
+            self._flush()
+        due = self._step - self.lag
+        self._step += 1
+        if due < 0:
+            return 0  # before the first decision: the env ignores it
+        label = self._ready[self._next]
+        self._next += 1
+        return label
+
+    def estimates(self) -> dict[str, np.ndarray]:
+        """Per label: the mean PRI of its last train and the arrival of its first pulse (NaN if unused)."""
+        period = np.array([m[0].period if m is not None else np.nan for m in self._tracks])
+        return {"period": period, "phase": self._phase.copy()}
+
+    def modulations(self) -> list[PRIModel | None]:
+        """Per label: the PRI model of its last train (None if the label was never used)."""
+        return [m[0] if m is not None else None for m in self._tracks]
+
+    # ---- windows -----------------------------------------------------------------------------------
+    def _flush(self) -> None:
+        if not self._toa:
+            return
+        toa = np.asarray(self._toa)
+        amp = np.asarray(self._amps) if self._amp else None
+        result = self.label_window(toa, amp)
+        self._ready.extend(self._to_labels(toa, result).tolist())
+        self._toa, self._amps = [], []
+
+    def _to_labels(self, toa: np.ndarray, result: Deinterleaving) -> np.ndarray:
+        w = self._windows
+        self._windows += 1
+        self.trains_found = len(result.trains)
+        self.trains_per_window.append(self.trains_found)
+        out = np.full(toa.size, self.n_labels, dtype=np.int64)
+        order = sorted(range(len(result.trains)), key=lambda i: -result.trains[i].pulses.size)
+        taken: set[int] = set()
+        for i in order:
+            train = result.trains[i]
+            if train.pulses.size == 0:
+                continue
+            first = float(toa[train.pulses[0]])
+            lab = self._continuing(train.model, first, taken)
+            if lab is None:
+                free = [j for j in range(self.n_labels) if j not in taken]
+                if not free:
+                    continue  # over the label budget: spurious
+                lab = min(free, key=lambda j: self._last_used[j])
+                self._phase[lab] = first
+            taken.add(lab)
+            self._last_used[lab] = w
+            self._tracks[lab] = (train.model, float(toa[train.pulses[-1]]))
+            out[train.pulses] = lab
+        return out
+
+    def _continuing(self, model: PRIModel, first: float, taken: set[int]) -> int | None:
+        """The label whose previous train this one continues: same PRI, first pulse on its lattice."""
+        sigma = self._sigma_used
+        for j, track in enumerate(self._tracks):
+            if track is None or j in taken or self._last_used[j] != self._windows - 2:
+                continue
+            old, last = track
+            if old.kind != model.kind or abs(old.period - model.period) > 0.01 * old.period + 4 * sigma:
+                continue
+            frame = old.period * max(len(old.levels), 1)
+            steps = (first - last) / frame
+            if old.kind != "constant" or abs(steps - round(steps)) * frame <= 4 * sigma + 0.002 * old.period * steps:
+                return j
+        return None
+
+
+class HistogramPolicy(BlindWindowPolicy):
+    """A PRI detector (CDIF, SDIF or the PRI transform), sequence search and re-association."""
+
+    detector: Detector
+
+    def __init__(self, window: int = 1000, align: bool = True, pri_min: float | None = None,
+                 pri_max: float | None = None, min_pulses: int = 6, min_fill: float = 0.8, max_miss: int = 3,
+                 presort_eps: float = 0.3):
+        super().__init__(window)
+        for name, v in (("pri_min", pri_min), ("pri_max", pri_max)):
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r} is invalid: a positive number (TOA units) or none (from the data)")
+        if pri_min is not None and pri_max is not None and pri_min >= pri_max:
+            raise ValueError(f"pri_min={pri_min} must be below pri_max={pri_max}")
+        if not (isinstance(min_pulses, int) and min_pulses >= 3):
+            raise ValueError(f"min_pulses={min_pulses!r} is invalid: an integer >= 3")
+        if not 0 < min_fill <= 1:
+            raise ValueError(f"min_fill={min_fill!r} is invalid: a number in (0, 1]")
+        if not presort_eps > 0:
+            raise ValueError(f"presort_eps={presort_eps!r} is invalid: a positive number (standardised units)")
+        self.presort_eps = float(presort_eps)
+        self.align = bool(align)
+        self.pri_min, self.pri_max = pri_min, pri_max
+        self.min_pulses, self.min_fill, self.max_miss = min_pulses, float(min_fill), int(max_miss)
+
+    def _params(self, toa: np.ndarray, sigma: float) -> SearchParams:
+        gaps = np.diff(toa)
+        med = float(np.median(gaps)) if gaps.size else 1.0
+        span = float(toa[-1] - toa[0]) if toa.size > 1 else 1.0
+        pri_max = self.pri_max or max(min(span / self.min_pulses, 100 * med), 1e-9)
+        pri_min = self.pri_min or min(max(0.5 * med, 12 * sigma), 0.5 * pri_max)
+        pr = self.priors
+        return SearchParams(sigma=sigma, pri_min=pri_min, pri_max=pri_max, min_pulses=self.min_pulses,
+                            min_fill=self.min_fill, max_miss=self.max_miss,
+                            missing_prob=pr.missing_prob, spurious_rate=pr.spurious_rate)
+
+    def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
+        """Deinterleave by PRI; with attached descriptors (frequency, pulse width, angle of arrival),
+        pulses are first pre-sorted into groups of like descriptors (DBSCAN, as an EW receiver sorts
+        by RF and AOA before the TOA analysis) and each group is deinterleaved on its own."""
+        feats = self.window_features(toa.size)
+        if not feats:
+            return self._label_toas(toa)
+        from sklearn.cluster import DBSCAN
+
+        ids = DBSCAN(eps=self.presort_eps, min_samples=self.min_pulses).fit_predict(standardised(feats))
+        labels = np.full(toa.size, -1, dtype=np.int64)
+        trains = []
+        for g in np.unique(ids):
+            idx = np.flatnonzero(ids == g)
+            if idx.size < self.min_pulses:
+                continue
+            part = self._label_toas(toa[idx])
+            for tr in part.trains:
+                labels[idx[tr.pulses]] = len(trains)
+                trains.append(tr._replace(pulses=idx[tr.pulses]))
+        return Deinterleaving(labels, trains)
+
+    def _label_toas(self, toa: np.ndarray) -> Deinterleaving:
+        sigma = self.priors.jitter_std
+        if sigma <= 0:
+            sigma = self._search_sigma(toa)
+        self._sigma_used = sigma
+        return deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+
+    def _search_sigma(self, toa: np.ndarray) -> float:
+        """The TOA noise, unknown: trial deinterleavings with sigma doubling from 1 % of the median
+        pulse spacing.  Too small a sigma fragments the trains (gates miss jittered pulses), too large
+        a one lets chance pulses in until no train passes the chance test; the smallest trial whose
+        trains hold 95 % of the most pulses any trial explained is taken, and sigma is the spread of
+        its trains' residuals."""
+        gaps = np.diff(toa)
+        trial = 0.01 * (float(np.median(gaps)) if gaps.size else 1.0)
+        runs = []  # (trial, pulses explained, measured sigma)
+        for _ in range(10):
+            first = deinterleave(toa, self.detector, self._params(toa, trial), align=False)
+            covered = sum(tr.pulses.size for tr in first.trains)
+            runs.append((trial, covered, self._measured_sigma(toa, first)))
+            if covered == 0 and any(r[1] for r in runs):
+                break
+            trial *= 2.0
+        best = max(r[1] for r in runs)
+        chosen = next(r for r in runs if r[1] >= 0.95 * best)
+        return chosen[2] or chosen[0]
+
+    @staticmethod
+    def _measured_sigma(toa: np.ndarray, first: Deinterleaving) -> float | None:
+        res = []
+        for tr in first.trains:
+            if tr.model.kind != "constant" or tr.pulses.size < 6:
+                continue
+            t = toa[tr.pulses]
+            k = np.round((t - t[0]) / tr.model.period)
+            fit = line_fit(t, k)
+            res.append(t - fit.origin - k * fit.period)
+        if not res:
+            return None
+        r = np.concatenate(res)
+        return float(1.4826 * np.median(np.abs(r - np.median(r)))) or None
+
+
+class CDIFPolicy(HistogramPolicy):
+    """`cdif`: Mardia's CDIF (1989) + sequence search."""
+
+    def __init__(self, x: float = 0.5, **kw: Any):
+        super().__init__(**kw)
+        self.detector = CDIF(x)
+
+
+class SDIFPolicy(HistogramPolicy):
+    """`sdif`: Milojevic & Popovic's SDIF (1992) + sequence search."""
+
+    def __init__(self, x: float = 0.1, k: float = 0.3, **kw: Any):
+        super().__init__(**kw)
+        self.detector = SDIF(x, k)
+
+
+class PRITransformPolicy(HistogramPolicy):
+    """`pri-transform`: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search."""
+
+    def __init__(self, eps: float = 0.01, alpha: float = 0.3, beta: float = 0.15, gamma: float = 4.0, **kw: Any):
+        super().__init__(**kw)
+        self.detector = PRITransform(eps, alpha, beta, gamma)

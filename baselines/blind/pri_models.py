@@ -1,0 +1,123 @@
+"""The PRI model of one extracted train: constant, stagger (with its levels), sliding or sinusoidal.
+
+- Sub-trains of one frame period F (found separately by sequence search at F) form a stagger; its
+  levels are the gaps between the sub-trains' phases within a frame, in emission order.  Equal
+  levels mean a constant PRI F / m that was extracted at a multiple.
+- One train: its line fit t = a + k T.  Residuals at the TOA noise level mean constant; otherwise the
+  successive PRIs d_n (between pulses one PRI apart) are fitted with a sinusoid
+  T (1 + depth sin(2 pi n / cycle + psi)) and a saw-tooth T (1 + depth (((n + p) mod cycle) /
+  (cycle - 1) - 1/2)) (the simulator's conventions), and the better one is kept when it explains at
+  least half of the PRI variance.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from deint_env.modulation import PRIModel
+
+
+class LineFit(NamedTuple):
+    """t ~ origin + k period, by least squares."""
+
+    origin: float
+    period: float
+    period_std: float
+    resid_std: float
+
+
+def line_fit(t: np.ndarray, k: np.ndarray) -> LineFit:
+    k = np.asarray(k, dtype=np.float64)
+    km, tm = k.mean(), t.mean()
+    skk = float(np.sum((k - km) ** 2))
+    slope = float(np.sum((k - km) * (t - tm)) / skk) if skk > 0 else math.nan
+    resid = t - (tm + slope * (k - km))
+    dof = max(t.size - 2, 1)
+    s = float(math.sqrt(np.sum(resid**2) / dof))
+    return LineFit(float(tm - slope * km), slope, s / math.sqrt(skk) if skk > 0 else math.inf, s)
+
+
+def _circular_groups(phases: np.ndarray, period: float, tol: float) -> np.ndarray:
+    """Sorted phases in [0, period) with those closer than tol (circularly) merged into their mean."""
+    ph = np.sort(np.mod(phases, period))
+    groups = [[ph[0]]]
+    for x in ph[1:]:
+        if x - groups[-1][-1] <= tol:
+            groups[-1].append(x)
+        else:
+            groups.append([x])
+    if len(groups) > 1 and groups[0][0] + period - groups[-1][-1] <= tol:  # wrap-around
+        groups[0] = [x - period for x in groups.pop()] + groups[0]
+    return np.sort(np.mod([np.mean(g) for g in groups], period))
+
+
+def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIModel, np.ndarray]:
+    """The model of sub-trains sharing the frame period F, and the distinct sub-train phases.
+
+    Sub-trains on one phase (pieces of one lattice) are merged; if the phases all lie on a lattice
+    F / n (a constant train extracted in pieces, some perhaps missing) the model is constant F / n;
+    otherwise a stagger whose levels are the gaps between the phases, in emission order.  `sigma`:
+    the sub-trains' TOA scatter (their largest residual spread, or the TOA noise)."""
+    tol = 4 * sigma + 1e-3 * frame
+    phases = _circular_groups(np.asarray(origins, dtype=np.float64), frame, tol)
+    levels = np.diff(np.concatenate([phases, [phases[0] + frame]]))
+    n = max(1, round(frame / float(levels.min())))
+    sub = frame / n
+    off = np.mod(phases - phases[0] + tol, sub) - tol  # each phase's distance from the F/n lattice
+    if n <= 2 * phases.size and np.all(np.abs(off) <= tol):  # at most half the sub-trains missing
+        return PRIModel("constant", sub), phases[:1]
+    # sub-trains found at a multiple of the frame repeat their levels: keep one cycle
+    m = levels.size
+    cycle = next(d for d in range(1, m + 1) if m % d == 0 and np.all(np.abs(levels - np.roll(levels, d)) <= 2 * tol))
+    return PRIModel("stagger", frame / m, tuple(float(v) for v in levels[:cycle])), phases
+
+
+def _sine_fit(n: np.ndarray, d: np.ndarray, max_cycle: float) -> tuple[float, float, float]:
+    """(rss, depth, cycle) of the best sinusoid over a frequency grid."""
+    best = (math.inf, 0.0, 0.0)
+    mean = d.mean()
+    for f in np.linspace(1.0 / max_cycle, 1.0 / 3.0, 400):
+        x = np.stack([np.ones_like(d), np.cos(2 * np.pi * f * n), np.sin(2 * np.pi * f * n)], axis=1)
+        coef, *_ = np.linalg.lstsq(x, d, rcond=None)
+        rss = float(np.sum((d - x @ coef) ** 2))
+        if rss < best[0]:
+            best = (rss, float(math.hypot(coef[1], coef[2]) / mean), float(1.0 / f))
+    return best
+
+
+def _sawtooth_fit(n: np.ndarray, d: np.ndarray, max_cycle: int) -> tuple[float, float, float]:
+    """(rss, depth, cycle) of the best saw-tooth over integer cycles and offsets."""
+    best = (math.inf, 0.0, 0.0)
+    mean = d.mean()
+    for c in range(4, max_cycle + 1):
+        s = (np.mod(n[None, :] + np.arange(c)[:, None], c) / (c - 1) - 0.5)  # (offset, pulse)
+        sc = s - s.mean(1, keepdims=True)
+        dc = d - mean
+        slope = (sc @ dc) / np.maximum(np.sum(sc**2, 1), 1e-300)
+        rss = np.sum((dc[None, :] - slope[:, None] * sc) ** 2, 1)
+        p = int(np.argmin(rss))
+        if rss[p] < best[0] and slope[p] > 0:
+            best = (float(rss[p]), float(slope[p] / mean), float(c))
+    return best
+
+
+def single_train_model(t: np.ndarray, k: np.ndarray, sigma: float) -> PRIModel:
+    fit = line_fit(t, k)
+    if fit.resid_std <= 2.0 * sigma + 1e-3 * fit.period or t.size < 12:
+        return PRIModel("constant", fit.period)
+    one = np.flatnonzero(np.diff(k) == 1)  # PRIs between pulses one period apart
+    if one.size < 12:
+        return PRIModel("constant", fit.period)
+    n, d = k[one].astype(np.float64), np.diff(t)[one]
+    rss0 = float(np.sum((d - d.mean()) ** 2))
+    max_cycle = int(min(200, max(6, one.size // 2)))
+    sine = _sine_fit(n, d, max_cycle)
+    saw = _sawtooth_fit(n, d, max_cycle)
+    rss, depth, cycle = min(sine, saw)
+    if rss > 0.5 * rss0:
+        return PRIModel("constant", fit.period)
+    kind = "sinusoidal" if sine <= saw else "sliding"
+    return PRIModel(kind, float(d.mean()), (), depth, cycle)

@@ -24,6 +24,9 @@ register_policy("pt-post", "baselines.pt:PTPost",
 register_policy("dokf", "baselines.pt:DOKFTracker",
                 description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                             "update; coasts through missed arrivals")
+register_policy("mht", "baselines.mht:MHT",
+                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; "
+                            "missed and spurious pulses scored; unknown rates estimated online")
 register_policy("ekf-bank", "baselines.ekf:EKFBank",
                 description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
                             "phase initialisations; labels from the best filter's predicted arrivals")

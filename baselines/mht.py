@@ -100,9 +100,11 @@ class Rates(NamedTuple):
 @njit(cache=True, nogil=True)
 def _step(y, k, size, blk, arr, last, key, score, lab, mis,
           nblk, narr, nlast, nkey, nscore, nlab, nmis,
-          zob, width, gate2, jitter_var, interval_var, log_q, log_1mq, log_gap, log_rho,
+          zob, width, gate2, jitter_var, interval_var, log_q, log_1mq, log_gap, log_rho, first, use_first,
           cb, ci, ck, cs, ce, cv):
     """Extend the beam (size hypotheses) with pulse k at y into the next buffers; returns the new size.
+    first[i]: the look-ahead score of y as source i's first pulse, added when use_first and the
+    hypothesis has not started source i yet.
     cb, ci, ck, cs, ce, cv: scratch for the candidates (parent, source or -1, steps, score, e, S)."""
     n = blk.shape[1]
     ring = lab.shape[1]
@@ -130,6 +132,8 @@ def _step(y, k, size, blk, arr, last, key, score, lab, mis,
             ci[nc] = i
             ck[nc] = steps
             cs[nc] = score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+            if use_first and arr[b, i] == 0:
+                cs[nc] += first[i]
             ce[nc] = e
             cv[nc] = s
             nc += 1
@@ -198,6 +202,68 @@ def _step(y, k, size, blk, arr, last, key, score, lab, mis,
     return out
 
 
+_BRANCH = 4  # look-ahead: pulses tried per arrival (the nearest in the gate)
+
+
+@njit(cache=True, nogil=True)
+def _first_scores(toa, n_seen, k, prior, gate2, jitter_var, interval_var, log_q, log_1mq, look, out):
+    """Track initiation by look-ahead: for each source i, the best log-likelihood of its next `look`
+    arrivals after taking pulse k as its first pulse (from its prior block `prior[i]`): a small tree
+    search over the buffered pulses in each arrival's gate (each a hit, log(1 - q) + log N(e; 0, S),
+    the KF updated (2.15)) or a miss (log q, the KF coasted (2.8)).  0 for a source whose gate misses
+    pulse k.  A depth-first search with an explicit stack (at most look * (_BRANCH + 1) + 1 nodes)."""
+    y = toa[k]
+    n = prior.shape[0]
+    size = look * (_BRANCH + 1) + 2
+    st = np.zeros((size, 8))  # t, tau, ptt, ptx, pxx, steps, total, depth
+    for i in range(n):
+        out[i] = 0.0
+        t, tau, ptt, ptx, pxx = prior[i, 0], prior[i, 1], prior[i, 2], prior[i, 3], prior[i, 4]
+        steps = max(1.0, np.floor((y - tau) / t + 0.5))
+        p_tx = ptx + steps * ptt
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+        s = p_xx + jitter_var
+        e = y - (tau + steps * t)
+        if e * e > gate2 * s:
+            continue
+        g, r_s = e / s, jitter_var / s
+        st[0, 0], st[0, 1], st[0, 2] = t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s
+        st[0, 3], st[0, 4], st[0, 5], st[0, 6], st[0, 7] = p_tx * r_s, p_xx * r_s, 1.0, 0.0, 0.0
+        top = 1
+        best = -1e300
+        while top > 0:
+            top -= 1
+            t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
+            steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
+            if depth >= look:
+                if total > best:
+                    best = total
+                continue
+            p_tx = ptx + steps * ptt
+            p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+            s = p_xx + jitter_var
+            pred = tau + steps * t
+            half = math.sqrt(gate2 * s)
+            lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
+            hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
+            if hi - lo > _BRANCH:  # keep the _BRANCH nearest
+                c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+                lo = max(lo, c - _BRANCH // 2)
+                hi = min(hi, lo + _BRANCH)
+            # the miss branch: coast one more arrival
+            st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0
+            top += 1
+            for j in range(lo, hi):
+                e = toa[j] - pred
+                g, r_s = e / s, jitter_var / s
+                st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+                st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
+                st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                st[top, 7] = depth + 1.0
+                top += 1
+        out[i] = best
+
+
 @njit(cache=True, nogil=True)
 def _prune(size, decided, label, blk, arr, last, key, score, lab, mis):
     """N-scan pruning: keep (in order) the hypotheses that gave pulse `decided` the label `label`."""
@@ -219,25 +285,30 @@ def _prune(size, decided, label, blk, arr, last, key, score, lab, mis):
 
 
 class MHT:
-    """Policy `mht`.  Parameters: `beam` (hypotheses kept), `start_beam` (during track initiation),
-    `lag` (decision lag = N-scan depth), `gate` (in innovation standard deviations), `p_gap` (the
-    probability of a source switching off and on again: the most a run of misses costs),
-    `rates` ("priors": use the priors' missing/spurious rates, estimating those they leave unknown;
-    "estimate": estimate both online whatever the priors say)."""
+    """Policy `mht`.  Parameters: `beam` (hypotheses kept), `start_beam` (kept during track
+    initiation), `nscan` (pulses between a pulse and its decision: the N-scan depth), `look` (arrivals
+    looked ahead to start a track), `lag` (the env lag: pulses are buffered so the initiation
+    look-ahead sees `look` periods of the longest source, but never longer than lag - nscan pulses),
+    `gate` (in innovation standard deviations), `p_gap` (a source switching off and on again: the most
+    a run of misses costs), `rates` ("priors": the priors' missing/spurious rates, estimating those
+    they leave unknown; "estimate": estimate both online whatever the priors say)."""
 
-    def __init__(self, beam: int = 32, start_beam: int = 256, lag: int = 24, gate: float = 4.0,
-                 p_gap: float = 1e-6, rates: str = "priors"):
-        for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("lag", lag, 0)):
+    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look: int = 3, lag: int = 512,
+                 gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors"):
+        for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
+                            ("look", look, 0), ("lag", lag, 0)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
+        if nscan > lag:
+            raise ValueError(f"nscan={nscan} must be <= lag={lag}")
         if not gate > 0:
             raise ValueError(f"gate={gate!r} must be > 0")
         if not 0 < p_gap < 1:
             raise ValueError(f"p_gap={p_gap!r} must be in (0, 1)")
         if rates not in ("priors", "estimate"):
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
-        self.beam, self.start_beam, self.lag, self.gate = beam, max(start_beam, beam), lag, float(gate)
-        self.log_gap, self.rates = math.log(p_gap), rates
+        self.beam, self.start_beam, self.nscan, self.look, self.lag = beam, max(start_beam, beam), nscan, look, lag
+        self.gate, self.log_gap, self.rates = float(gate), math.log(p_gap), rates
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
@@ -250,27 +321,31 @@ class MHT:
         phase_std = np.where(known, priors.phase_std, priors.period / math.sqrt(12.0))
         b = prior_block(Priors(n_labels=n, period=priors.period, phase=phase, period_std=priors.period_std,
                                phase_std=phase_std))
-        ring = self.lag + 1
+        self.prior = np.ascontiguousarray(np.stack(list(b), axis=-1))
+        ring = self.nscan + 1
         cap = self.start_beam
         self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
-        self.cur.blk[0] = np.stack(list(b), axis=-1)
+        self.cur.blk[0] = self.prior
         self.size = 1
         c = cap * (n + 1)
         self.scratch = (np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c),
                         np.zeros(c))
+        self.first = np.zeros(n)
         rng = np.random.default_rng(0x5EED)
-        self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64)
-        self.zob = self.zob.astype(np.uint64)
-        # the key of "no pulse yet" is the xor of every source's entry at index -1 & mask
+        self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
+        # the key of "no pulse yet": every source's entry for last = -1 (index mask)
         self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
-        self.start_until = float(np.nanmin(phase)) + 2.0 * float(np.max(priors.period)) + \
-            4.0 * float(np.max(phase_std))
+        t_max = float(np.max(priors.period))
+        self.start_until = float(np.max(phase + 4.0 * phase_std)) + t_max
+        self.horizon = (self.look + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std))
         self.pulse_rate = float(np.sum(1.0 / priors.period))
         q, r = priors.missing_prob, priors.spurious_rate
         self.known_q = q if (self.rates == "priors" and math.isfinite(q)) else None
         self.known_r = r if (self.rates == "priors" and math.isfinite(r)) else None
         self.hits = self.misses = self.spurious = 0  # decided so far
-        self.k = 0
+        self.toa = np.zeros(1024)
+        self.n_seen = 0
+        self.k = 0  # next pulse to process
         self.labels: list[int] = []  # decided labels, in pulse order
         self.steps = 0
 
@@ -293,25 +368,40 @@ class MHT:
 
     def act(self, obs: dict[str, Any]) -> int:
         if int(obs["valid"]):
-            self._pulse(float(obs["toa"][0]))
-        elif len(self.labels) < self.k:  # the stream ended: the best hypothesis labels the rest
-            c, ring = self.cur, self.lag + 1
+            if self.n_seen == self.toa.size:
+                self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
+            self.toa[self.n_seen] = float(obs["toa"][0])
+            self.n_seen += 1
+            newest = self.toa[self.n_seen - 1]
+            # process a pulse once the look-ahead is buffered, or when its decision is due
+            while self.k < self.n_seen and (
+                    self.n_seen - 1 - self.k >= self.lag - self.nscan
+                    or newest >= self.toa[self.k] + (self.horizon if self.toa[self.k] <= self.start_until else 0.0)):
+                self._pulse()
+        elif len(self.labels) < self.n_seen:  # the stream ended: process the rest, then label it
+            while self.k < self.n_seen:
+                self._pulse()
+            c, ring = self.cur, self.nscan + 1
             for j in range(len(self.labels), self.k):
                 self._decided(int(c.label[0, j % ring]), int(c.missed[0, j % ring]))
         self.steps += 1
         t = self.steps - 1 - self.lag  # step t labels pulse t - lag
         return self.labels[t] if 0 <= t < len(self.labels) else 0
 
-    def _pulse(self, y: float) -> None:
-        rates, m, c, x = self._rates(), self.model, self.cur, self.nxt
-        width = self.start_beam if y <= self.start_until else self.beam
-        k = self.k
-        size = _step(y, k, self.size, *c, *x, self.zob, width, self.gate ** 2, m.jitter_var, m.interval_var,
-                     rates.log_q, rates.log_1mq, rates.log_gap, rates.log_rho, *self.scratch)
+    def _pulse(self) -> None:
+        rates, m, c, x, k = self._rates(), self.model, self.cur, self.nxt, self.k
+        y = float(self.toa[k])
+        starting = y <= self.start_until
+        if starting:
+            _first_scores(self.toa, self.n_seen, k, self.prior, self.gate ** 2, m.jitter_var, m.interval_var,
+                          rates.log_q, rates.log_1mq, self.look, self.first)
+        size = _step(y, k, self.size, *c, *x, self.zob, self.start_beam if starting else self.beam, self.gate ** 2,
+                     m.jitter_var, m.interval_var, rates.log_q, rates.log_1mq, rates.log_gap, rates.log_rho,
+                     self.first, starting, *self.scratch)
         self.cur, self.nxt = x, c
-        decided = k - self.lag
+        decided = k - self.nscan
         if decided >= 0:
-            ring = self.lag + 1
+            ring = self.nscan + 1
             label = int(x.label[0, decided % ring])
             self._decided(label, int(x.missed[0, decided % ring]))
             size = _prune(size, decided, label, *x)

@@ -59,7 +59,8 @@ except ImportError:  # the same code, interpreted
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _Q_FLOOR = 1e-3  # miss probability floor: a merged or lost pulse stays explainable
-_R_FLOOR = 1e-3  # spurious-rate floor
+_R_FLOOR = 1e-3  # spurious-rate floor of an estimated (or stated nonzero) rate
+_R_ZERO = 1e-6  # the rate used when the priors state 0: a pulse no track can explain stays spurious
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
 _HASH_BITS = 12  # Zobrist table: per source, 2^12 entries indexed by the last pulse's index
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -113,30 +114,32 @@ def _step(y, k, size, blk, arr, last, key, score, lab, mis,
         for i in range(n):
             t = blk[b, i, PERIOD]
             tau = blk[b, i, TAU]
-            steps = np.floor((y - tau) / t + 0.5)
-            if steps < 1.0:
-                steps = 1.0
+            near = max(1.0, np.floor((y - tau) / t + 0.5))
             ptt = blk[b, i, P_TT]
             ptx = blk[b, i, P_TX]
-            s = blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
-            e = y - (tau + steps * t)
-            if e * e > gate2 * s:
-                continue
-            m = steps - 1.0
-            miss = 0.0
-            if m > 0.0:
-                miss = m * log_q
-                if miss < log_gap:
-                    miss = log_gap
-            cb[nc] = b
-            ci[nc] = i
-            ck[nc] = steps
-            cs[nc] = score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
-            if use_first and arr[b, i] == 0:
-                cs[nc] += first[i]
-            ce[nc] = e
-            cv[nc] = s
-            nc += 1
+            # the nearest arrival, and (when that is not it) the very next one: with a period still
+            # uncertain, "no miss" must stay a candidate
+            for which in range(2):
+                if which == 1 and near == 1.0:
+                    break
+                steps = near if which == 0 else 1.0
+                s = blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
+                e = y - (tau + steps * t)
+                if e * e > gate2 * s:
+                    continue
+                m = steps - 1.0
+                miss = 0.0
+                if m > 0.0:
+                    miss = max(m * log_q, log_gap)
+                cb[nc] = b
+                ci[nc] = i
+                ck[nc] = steps
+                cs[nc] = score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                if use_first and arr[b, i] == 0:
+                    cs[nc] += first[i]
+                ce[nc] = e
+                cv[nc] = s
+                nc += 1
         cb[nc] = b
         ci[nc] = -1
         cs[nc] = score[b] + log_rho
@@ -327,7 +330,7 @@ class MHT:
         self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
         self.cur.blk[0] = self.prior
         self.size = 1
-        c = cap * (n + 1)
+        c = cap * (2 * n + 1)
         self.scratch = (np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c),
                         np.zeros(c))
         self.first = np.zeros(n)
@@ -355,7 +358,7 @@ class MHT:
             (self.misses + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
         r = self.known_r if self.known_r is not None else \
             (self.spurious + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
-        q, r = min(max(q, _Q_FLOOR), 0.9), max(r, _R_FLOOR)
+        q, r = min(max(q, _Q_FLOOR), 0.9), (max(r, _R_FLOOR) if r > 0 else _R_ZERO)
         return Rates(math.log(q), math.log1p(-q), self.log_gap, math.log(r * self.pulse_rate))
 
     def _decided(self, label: int, missed: int) -> None:

@@ -89,15 +89,6 @@ class Beam(NamedTuple):
                    np.zeros((capacity, ring), np.int64))
 
 
-class Rates(NamedTuple):
-    """The per-pulse constants of the scores."""
-
-    log_q: float  # log of the miss probability
-    log_1mq: float
-    log_gap: float  # the most a run of misses can cost
-    log_rho: float  # log spurious intensity (per unit time)
-
-
 @njit(cache=True, nogil=True)
 def _step(y, k, size, blk, arr, last, key, score, lab, mis,
           nblk, narr, nlast, nkey, nscore, nlab, nmis,
@@ -287,6 +278,105 @@ def _prune(size, decided, label, blk, arr, last, key, score, lab, mis):
     return out
 
 
+class Settings(NamedTuple):
+    """What `_run` needs besides the beam (a tuple of scalars: one argument for numba)."""
+
+    gate2: float
+    jitter_var: float
+    interval_var: float
+    log_gap: float
+    pulse_rate: float
+    known_q: float  # NaN: estimate
+    known_r: float  # NaN: estimate
+    start_until: float  # track initiation lasts while pulses are earlier than this
+    horizon: float  # look-ahead (time) buffered before a pulse is processed during initiation
+    beam: int
+    start_beam: int
+    nscan: int
+    look: int
+    reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
+
+
+@njit(cache=True, nogil=True)
+def _rates(cfg, counts):
+    """The per-pulse constants: stated rates, or the online estimates from the decided labels
+    (counts = hits, misses, spurious) with the weak Beta prior."""
+    arrivals = counts[0] + counts[1]
+    q = cfg.known_q
+    if math.isnan(q):
+        q = (counts[1] + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
+    r = cfg.known_r
+    if math.isnan(r):
+        r = (counts[2] + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
+    q = min(max(q, _Q_FLOOR), 0.9)
+    r = max(r, _R_FLOOR) if r > 0 else _R_ZERO
+    return math.log(q), math.log1p(-q), math.log(r * cfg.pulse_rate)
+
+
+@njit(cache=True, nogil=True)
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, first, scratch, cfg, counts, labels, n_labels):
+    """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
+    the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
+    the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
+    `swapped` when the beam now lives in `nxt`."""
+    n = prior.shape[0]
+    ring = cfg.nscan + 1
+    newest = toa[n_seen - 1]
+    swapped = False
+    cb, ci, ck, cs, ce, cv = scratch
+    while k < n_seen:
+        y = toa[k]
+        starting = y <= cfg.start_until
+        ahead = 0.0
+        if starting:
+            ahead = cfg.horizon
+        if not ended and n_seen - 1 - k < cfg.reserve and newest < y + ahead:
+            break
+        log_q, log_1mq, log_rho = _rates(cfg, counts)
+        if starting:
+            _first_scores(toa, n_seen, k, prior, cfg.gate2, cfg.jitter_var, cfg.interval_var, log_q, log_1mq,
+                          cfg.look, first)
+        if swapped:
+            a, b = nxt, cur
+        else:
+            a, b = cur, nxt
+        width = cfg.beam
+        if starting:
+            width = cfg.start_beam
+        size = _step(y, k, size, a[0], a[1], a[2], a[3], a[4], a[5], a[6], b[0], b[1], b[2], b[3], b[4], b[5], b[6],
+                     zob, width, cfg.gate2, cfg.jitter_var, cfg.interval_var,
+                     log_q, log_1mq, cfg.log_gap, log_rho, first, starting, cb, ci, ck, cs, ce, cv)
+        swapped = not swapped
+        decided = k - cfg.nscan
+        if decided >= 0:
+            slot = decided % ring
+            label = b[5][0, slot]
+            _count(counts, label, b[6][0, slot], n)
+            labels[n_labels] = label
+            n_labels += 1
+            size = _prune(size, decided, label, b[0], b[1], b[2], b[3], b[4], b[5], b[6])
+        k += 1
+    if ended and k == n_seen:  # the best hypothesis labels the undecided tail
+        best = cur
+        if swapped:
+            best = nxt
+        for j in range(n_labels, n_seen):
+            slot = j % ring
+            _count(counts, best[5][0, slot], best[6][0, slot], n)
+            labels[j] = best[5][0, slot]
+        n_labels = n_seen
+    return k, size, swapped, n_labels
+
+
+@njit(cache=True, nogil=True)
+def _count(counts, label, missed, n):
+    if label == n:
+        counts[2] += 1
+    else:
+        counts[0] += 1
+        counts[1] += missed
+
+
 class MHT:
     """Policy `mht`.  Parameters: `beam` (hypotheses kept), `start_beam` (kept during track
     initiation), `nscan` (pulses between a pulse and its decision: the N-scan depth), `look` (arrivals
@@ -294,12 +384,13 @@ class MHT:
     look-ahead sees `look` periods of the longest source, but never longer than lag - nscan pulses),
     `gate` (in innovation standard deviations), `p_gap` (a source switching off and on again: the most
     a run of misses costs), `rates` ("priors": the priors' missing/spurious rates, estimating those
-    they leave unknown; "estimate": estimate both online whatever the priors say)."""
+    they leave unknown; "estimate": estimate both online whatever the priors say), `batch` (pulses
+    buffered per call of the compiled driver; labels do not depend on it)."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look: int = 3, lag: int = 512,
-                 gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors"):
+                 gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
-                            ("look", look, 0), ("lag", lag, 0)):
+                            ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         if nscan > lag:
@@ -311,13 +402,13 @@ class MHT:
         if rates not in ("priors", "estimate"):
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
         self.beam, self.start_beam, self.nscan, self.look, self.lag = beam, max(start_beam, beam), nscan, look, lag
-        self.gate, self.log_gap, self.rates = float(gate), math.log(p_gap), rates
+        self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
             raise NotApplicable("mht needs priors (an anchored scenario)")
         n = self.n = priors.n_labels
-        self.model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
+        model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
         # an unknown phase: the first arrival is somewhere in the first period
         known = np.isfinite(priors.phase)
         phase = np.where(known, priors.phase, 0.5 * priors.period)
@@ -339,77 +430,47 @@ class MHT:
         # the key of "no pulse yet": every source's entry for last = -1 (index mask)
         self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
         t_max = float(np.max(priors.period))
-        self.start_until = float(np.max(phase + 4.0 * phase_std)) + t_max
-        self.horizon = (self.look + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std))
-        self.pulse_rate = float(np.sum(1.0 / priors.period))
-        q, r = priors.missing_prob, priors.spurious_rate
-        self.known_q = q if (self.rates == "priors" and math.isfinite(q)) else None
-        self.known_r = r if (self.rates == "priors" and math.isfinite(r)) else None
-        self.hits = self.misses = self.spurious = 0  # decided so far
+        stated = self.rates == "priors"
+        self.cfg = Settings(
+            gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
+            log_gap=math.log(self.p_gap), pulse_rate=float(np.sum(1.0 / priors.period)),
+            known_q=float(priors.missing_prob) if stated else math.nan,
+            known_r=float(priors.spurious_rate) if stated else math.nan,
+            start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
+            horizon=(self.look + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
+            beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look=self.look,
+            reserve=self.lag - self.nscan)
+        self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
-        self.n_seen = 0
+        self.labels = np.zeros(1024, np.int64)
+        self.n_seen = self.n_labels = 0
         self.k = 0  # next pulse to process
-        self.labels: list[int] = []  # decided labels, in pulse order
+        self.ended = False
         self.steps = 0
-
-    def _rates(self) -> Rates:
-        arrivals = self.hits + self.misses
-        q = self.known_q if self.known_q is not None else \
-            (self.misses + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
-        r = self.known_r if self.known_r is not None else \
-            (self.spurious + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
-        q, r = min(max(q, _Q_FLOOR), 0.9), (max(r, _R_FLOOR) if r > 0 else _R_ZERO)
-        return Rates(math.log(q), math.log1p(-q), self.log_gap, math.log(r * self.pulse_rate))
-
-    def _decided(self, label: int, missed: int) -> None:
-        self.labels.append(label)
-        if label == self.n:
-            self.spurious += 1
-        else:
-            self.hits += 1
-            self.misses += missed
 
     def act(self, obs: dict[str, Any]) -> int:
         if int(obs["valid"]):
             if self.n_seen == self.toa.size:
                 self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
+                self.labels = np.concatenate([self.labels, np.zeros(self.labels.size, np.int64)])
             self.toa[self.n_seen] = float(obs["toa"][0])
             self.n_seen += 1
-            newest = self.toa[self.n_seen - 1]
-            # process a pulse once the look-ahead is buffered, or when its decision is due
-            while self.k < self.n_seen and (
-                    self.n_seen - 1 - self.k >= self.lag - self.nscan
-                    or newest >= self.toa[self.k] + (self.horizon if self.toa[self.k] <= self.start_until else 0.0)):
-                self._pulse()
-        elif len(self.labels) < self.n_seen:  # the stream ended: process the rest, then label it
-            while self.k < self.n_seen:
-                self._pulse()
-            c, ring = self.cur, self.nscan + 1
-            for j in range(len(self.labels), self.k):
-                self._decided(int(c.label[0, j % ring]), int(c.missed[0, j % ring]))
+            if self.n_seen - self.k >= self.batch or self.n_seen - 1 - self.k >= self.lag - self.nscan:
+                self._run()
+        elif not self.ended:
+            self.ended = True
+            if self.n_seen:
+                self._run()
         self.steps += 1
         t = self.steps - 1 - self.lag  # step t labels pulse t - lag
-        return self.labels[t] if 0 <= t < len(self.labels) else 0
+        return int(self.labels[t]) if 0 <= t < self.n_labels else 0
 
-    def _pulse(self) -> None:
-        rates, m, c, x, k = self._rates(), self.model, self.cur, self.nxt, self.k
-        y = float(self.toa[k])
-        starting = y <= self.start_until
-        if starting:
-            _first_scores(self.toa, self.n_seen, k, self.prior, self.gate ** 2, m.jitter_var, m.interval_var,
-                          rates.log_q, rates.log_1mq, self.look, self.first)
-        size = _step(y, k, self.size, *c, *x, self.zob, self.start_beam if starting else self.beam, self.gate ** 2,
-                     m.jitter_var, m.interval_var, rates.log_q, rates.log_1mq, rates.log_gap, rates.log_rho,
-                     self.first, starting, *self.scratch)
-        self.cur, self.nxt = x, c
-        decided = k - self.nscan
-        if decided >= 0:
-            ring = self.nscan + 1
-            label = int(x.label[0, decided % ring])
-            self._decided(label, int(x.missed[0, decided % ring]))
-            size = _prune(size, decided, label, *x)
-        self.size = size
-        self.k = k + 1
+    def _run(self) -> None:
+        self.k, self.size, swapped, self.n_labels = _run(
+            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
+            self.first, self.scratch, self.cfg, self.counts, self.labels, self.n_labels)
+        if swapped:
+            self.cur, self.nxt = self.nxt, self.cur
 
     def estimates(self) -> dict[str, np.ndarray]:
         blk, arr = self.cur.blk[0], self.cur.arrivals[0]

@@ -71,215 +71,55 @@ PERIOD, TAU, P_TT, P_TX, P_XX = range(5)
 class Beam(NamedTuple):
     """A beam of up to `capacity` hypotheses (the first `size` are live).  blk: (B, N, 5) KF blocks;
     arrivals: (B, N) arrivals made (taken + missed); last: (B, N) index of the source's last pulse
-    (-1 none); key: (B,) Zobrist hash of `last`; score: (B,) log-likelihood; label, missed: (B, L)
-    ring buffers over the last L = lag + 1 pulses (label N = spurious; misses before the pulse)."""
+    (-1 none); key: (B,) Zobrist hash of `last`; score: (B,) log-likelihood; h: (B, N) each track's
+    look-ahead score, ahead: (B,) their sum; label, missed: (B, L) ring buffers over the last
+    L = nscan + 1 pulses (label N = spurious; the misses before the pulse)."""
 
     blk: np.ndarray
     arrivals: np.ndarray
     last: np.ndarray
     key: np.ndarray
     score: np.ndarray
+    h: np.ndarray
+    ahead: np.ndarray
     label: np.ndarray
     missed: np.ndarray
 
     @classmethod
     def empty(cls, capacity: int, n: int, ring: int) -> Beam:
         return cls(np.zeros((capacity, n, 5)), np.zeros((capacity, n), np.int64), np.full((capacity, n), -1, np.int64),
-                   np.zeros(capacity, np.uint64), np.zeros(capacity), np.zeros((capacity, ring), np.int64),
-                   np.zeros((capacity, ring), np.int64))
+                   np.zeros(capacity, np.uint64), np.zeros(capacity), np.zeros((capacity, n)), np.zeros(capacity),
+                   np.zeros((capacity, ring), np.int64), np.zeros((capacity, ring), np.int64))
 
 
-@njit(cache=True, nogil=True)
-def _step(y, k, size, blk, arr, last, key, score, lab, mis,
-          nblk, narr, nlast, nkey, nscore, nlab, nmis,
-          zob, width, gate2, jitter_var, interval_var, log_q, log_1mq, log_gap, log_rho, first, use_first,
-          cb, ci, ck, cs, ce, cv):
-    """Extend the beam (size hypotheses) with pulse k at y into the next buffers; returns the new size.
-    first[i]: the look-ahead score of y as source i's first pulse, added when use_first and the
-    hypothesis has not started source i yet.
-    cb, ci, ck, cs, ce, cv: scratch for the candidates (parent, source or -1, steps, score, e, S)."""
-    n = blk.shape[1]
-    ring = lab.shape[1]
-    nc = 0
-    for b in range(size):
-        for i in range(n):
-            t = blk[b, i, PERIOD]
-            tau = blk[b, i, TAU]
-            near = max(1.0, np.floor((y - tau) / t + 0.5))
-            ptt = blk[b, i, P_TT]
-            ptx = blk[b, i, P_TX]
-            # the nearest arrival, and (when that is not it) the very next one: with a period still
-            # uncertain, "no miss" must stay a candidate
-            for which in range(2):
-                if which == 1 and near == 1.0:
-                    break
-                steps = near if which == 0 else 1.0
-                s = blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
-                e = y - (tau + steps * t)
-                if e * e > gate2 * s:
-                    continue
-                m = steps - 1.0
-                miss = 0.0
-                if m > 0.0:
-                    miss = max(m * log_q, log_gap)
-                cb[nc] = b
-                ci[nc] = i
-                ck[nc] = steps
-                cs[nc] = score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
-                if use_first and arr[b, i] == 0:
-                    cs[nc] += first[i]
-                ce[nc] = e
-                cv[nc] = s
-                nc += 1
-        cb[nc] = b
-        ci[nc] = -1
-        cs[nc] = score[b] + log_rho
-        nc += 1
-    order = np.argsort(-cs[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
-    slot = k % ring
-    mask = zob.shape[1] - 1
-    out = 0
-    for j in order:
-        if out == width:
-            break
-        b = cb[j]
-        i = ci[j]
-        h = key[b]
-        if i >= 0:
-            h = h ^ zob[i, last[b, i] & mask] ^ zob[i, k & mask]
-        dup = False
-        for o in range(out):
-            if nkey[o] == h:
-                same = True
-                for s_ in range(n):
-                    want = k if s_ == i else last[b, s_]
-                    if nlast[o, s_] != want:
-                        same = False
-                        break
-                if same:
-                    dup = True
-                    break
-        if dup:
-            continue
-        nblk[out] = blk[b]
-        narr[out] = arr[b]
-        nlast[out] = last[b]
-        nlab[out] = lab[b]
-        nmis[out] = mis[b]
-        nkey[out] = h
-        nscore[out] = cs[j]
-        if i >= 0:
-            steps = ck[j]
-            t = blk[b, i, PERIOD]
-            ptt = blk[b, i, P_TT]
-            ptx = blk[b, i, P_TX]
-            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q
-            p_tx = ptx + steps * ptt
-            p_xx = cv[j] - jitter_var
-            inv_s = 1.0 / cv[j]
-            g = ce[j] * inv_s
-            r_s = jitter_var * inv_s
-            # (2.15), written as in kalman.update (P R / S: no cancellation)
-            nblk[out, i, PERIOD] = t + p_tx * g
-            nblk[out, i, TAU] = blk[b, i, TAU] + steps * t + p_xx * g
-            nblk[out, i, P_TT] = ptt - p_tx * p_tx * inv_s
-            nblk[out, i, P_TX] = p_tx * r_s
-            nblk[out, i, P_XX] = p_xx * r_s
-            narr[out, i] += int(steps)
-            nlast[out, i] = k
-            nlab[out, slot] = i
-            nmis[out, slot] = int(steps) - 1
-        else:
-            nlab[out, slot] = n
-            nmis[out, slot] = 0
-        out += 1
-    return out
+class Scratch(NamedTuple):
+    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead),
+    the look-ahead cache per source (last pulse, steps, value; `used` entries) and the search stack."""
 
+    parent: np.ndarray
+    source: np.ndarray
+    steps: np.ndarray
+    score: np.ndarray
+    rank: np.ndarray
+    e: np.ndarray
+    s: np.ndarray
+    h: np.ndarray
+    cache_last: np.ndarray
+    cache_steps: np.ndarray
+    cache_val: np.ndarray
+    used: np.ndarray
+    stack: np.ndarray
 
-_BRANCH = 4  # look-ahead: pulses tried per arrival (the nearest in the gate)
-
-
-@njit(cache=True, nogil=True)
-def _first_scores(toa, n_seen, k, prior, gate2, jitter_var, interval_var, log_q, log_1mq, look, out):
-    """Track initiation by look-ahead: for each source i, the best log-likelihood of its next `look`
-    arrivals after taking pulse k as its first pulse (from its prior block `prior[i]`): a small tree
-    search over the buffered pulses in each arrival's gate (each a hit, log(1 - q) + log N(e; 0, S),
-    the KF updated (2.15)) or a miss (log q, the KF coasted (2.8)).  0 for a source whose gate misses
-    pulse k.  A depth-first search with an explicit stack (at most look * (_BRANCH + 1) + 1 nodes)."""
-    y = toa[k]
-    n = prior.shape[0]
-    size = look * (_BRANCH + 1) + 2
-    st = np.zeros((size, 8))  # t, tau, ptt, ptx, pxx, steps, total, depth
-    for i in range(n):
-        out[i] = 0.0
-        t, tau, ptt, ptx, pxx = prior[i, 0], prior[i, 1], prior[i, 2], prior[i, 3], prior[i, 4]
-        steps = max(1.0, np.floor((y - tau) / t + 0.5))
-        p_tx = ptx + steps * ptt
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
-        s = p_xx + jitter_var
-        e = y - (tau + steps * t)
-        if e * e > gate2 * s:
-            continue
-        g, r_s = e / s, jitter_var / s
-        st[0, 0], st[0, 1], st[0, 2] = t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s
-        st[0, 3], st[0, 4], st[0, 5], st[0, 6], st[0, 7] = p_tx * r_s, p_xx * r_s, 1.0, 0.0, 0.0
-        top = 1
-        best = -1e300
-        while top > 0:
-            top -= 1
-            t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
-            steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
-            if depth >= look:
-                if total > best:
-                    best = total
-                continue
-            p_tx = ptx + steps * ptt
-            p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
-            s = p_xx + jitter_var
-            pred = tau + steps * t
-            half = math.sqrt(gate2 * s)
-            lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
-            hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
-            if hi - lo > _BRANCH:  # keep the _BRANCH nearest
-                c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
-                lo = max(lo, c - _BRANCH // 2)
-                hi = min(hi, lo + _BRANCH)
-            # the miss branch: coast one more arrival
-            st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0
-            top += 1
-            for j in range(lo, hi):
-                e = toa[j] - pred
-                g, r_s = e / s, jitter_var / s
-                st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
-                st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
-                st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
-                st[top, 7] = depth + 1.0
-                top += 1
-        out[i] = best
-
-
-@njit(cache=True, nogil=True)
-def _prune(size, decided, label, blk, arr, last, key, score, lab, mis):
-    """N-scan pruning: keep (in order) the hypotheses that gave pulse `decided` the label `label`."""
-    ring = lab.shape[1]
-    slot = decided % ring
-    out = 0
-    for b in range(size):
-        if lab[b, slot] == label:
-            if out != b:
-                blk[out] = blk[b]
-                arr[out] = arr[b]
-                last[out] = last[b]
-                key[out] = key[b]
-                score[out] = score[b]
-                lab[out] = lab[b]
-                mis[out] = mis[b]
-            out += 1
-    return out
+    @classmethod
+    def empty(cls, candidates: int, n: int, look: int) -> Scratch:
+        c = candidates
+        return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
+                   np.zeros(c), np.zeros(c), np.zeros((n, _CACHE), np.int64), np.zeros((n, _CACHE)),
+                   np.zeros((n, _CACHE)), np.zeros(n, np.int64), np.zeros((look * (_BRANCH + 1) + 2, 8)))
 
 
 class Settings(NamedTuple):
-    """What `_run` needs besides the beam (a tuple of scalars: one argument for numba)."""
+    """What the compiled driver needs besides the beam (one argument for numba)."""
 
     gate2: float
     jitter_var: float
@@ -289,12 +129,217 @@ class Settings(NamedTuple):
     known_q: float  # NaN: estimate
     known_r: float  # NaN: estimate
     start_until: float  # track initiation lasts while pulses are earlier than this
-    horizon: float  # look-ahead (time) buffered before a pulse is processed during initiation
+    horizon_start: float  # look-ahead (time) buffered before a pulse is processed, during initiation
+    horizon: float  # and after it
     beam: int
     start_beam: int
     nscan: int
-    look: int
+    look_start: int  # arrivals looked ahead when a track takes its first pulse
+    look: int  # and later
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
+
+
+_BRANCH = 3  # look-ahead: pulses tried per arrival (the nearest in the gate)
+_CACHE = 8  # look-ahead values cached per source and pulse
+
+
+@njit(cache=True, nogil=True)
+def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st):
+    """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
+    block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
+    (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
+    An arrival beyond the buffer ends the search (nothing known yet).  Depth-first with the explicit
+    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth)."""
+    if look <= 0:
+        return 0.0
+    newest = toa[n_seen - 1]
+    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
+    st[0, 5], st[0, 6], st[0, 7] = 1.0, 0.0, 0.0
+    top = 1
+    best = -1e300
+    while top > 0:
+        top -= 1
+        t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
+        steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
+        p_tx = ptx + steps * ptt
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+        s = p_xx + jitter_var
+        pred = tau + steps * t
+        half = math.sqrt(gate2 * s)
+        if depth >= look or pred + half > newest:
+            if total > best:
+                best = total
+            continue
+        lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
+        hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
+        if hi - lo > _BRANCH:  # keep the _BRANCH nearest
+            c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+            lo = max(lo, c - _BRANCH // 2)
+            hi = min(hi, lo + _BRANCH)
+        st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0  # the miss branch
+        top += 1
+        for j in range(lo, hi):
+            e = toa[j] - pred
+            g, r_s = e / s, jitter_var / s
+            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+            st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
+            st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+            st[top, 7] = depth + 1.0
+            top += 1
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _step(toa, n_seen, k, size, c, x, zob, width, look, cfg, log_q, log_1mq, log_rho, w):
+    """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
+    ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
+    track has no good continuation loses at once instead of a period later."""
+    y = toa[k]
+    n = c.blk.shape[1]
+    ring = c.label.shape[1]
+    gate2, jitter_var, interval_var = cfg.gate2, cfg.jitter_var, cfg.interval_var
+    w.used[:] = 0
+    nc = 0
+    for b in range(size):
+        for i in range(n):
+            t = c.blk[b, i, PERIOD]
+            tau = c.blk[b, i, TAU]
+            near = max(1.0, np.floor((y - tau) / t + 0.5))
+            ptt = c.blk[b, i, P_TT]
+            ptx = c.blk[b, i, P_TX]
+            # the nearest arrival, and (when that is not it) the very next one: with a period still
+            # uncertain, "no miss" must stay a candidate
+            for which in range(2):
+                if which == 1 and near == 1.0:
+                    break
+                steps = near if which == 0 else 1.0
+                s = c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
+                e = y - (tau + steps * t)
+                if e * e > gate2 * s:
+                    continue
+                m = steps - 1.0
+                miss = 0.0
+                if m > 0.0:
+                    miss = max(m * log_q, cfg.log_gap)
+                # the track's look-ahead after taking y (cached per source, last pulse and steps)
+                depth = look
+                if c.arrivals[b, i] == 0:
+                    depth = cfg.look_start
+                hv = 0.0
+                found = False
+                for q in range(w.used[i]):
+                    if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps:
+                        hv = w.cache_val[i, q]
+                        found = True
+                        break
+                if not found:
+                    p_tx = ptx + steps * ptt
+                    p_xx = s - jitter_var
+                    g, r_s = e / s, jitter_var / s
+                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s,
+                                 p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var, interval_var, log_q, log_1mq,
+                                 w.stack)
+                    if w.used[i] < _CACHE:
+                        q = w.used[i]
+                        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
+                        w.used[i] += 1
+                w.parent[nc] = b
+                w.source[nc] = i
+                w.steps[nc] = steps
+                w.score[nc] = c.score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                w.h[nc] = hv
+                w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
+                w.e[nc] = e
+                w.s[nc] = s
+                nc += 1
+        w.parent[nc] = b
+        w.source[nc] = -1
+        w.score[nc] = c.score[b] + log_rho
+        w.rank[nc] = w.score[nc] + c.ahead[b]
+        nc += 1
+    order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
+    slot = k % ring
+    mask = zob.shape[1] - 1
+    out = 0
+    for j in order:
+        if out == width:
+            break
+        b = w.parent[j]
+        i = w.source[j]
+        h = c.key[b]
+        if i >= 0:
+            h = h ^ zob[i, c.last[b, i] & mask] ^ zob[i, k & mask]
+        dup = False
+        for o in range(out):  # the same last pulse for every source: keep the better only
+            if x.key[o] == h:
+                same = True
+                for s_ in range(n):
+                    want = k if s_ == i else c.last[b, s_]
+                    if x.last[o, s_] != want:
+                        same = False
+                        break
+                if same:
+                    dup = True
+                    break
+        if dup:
+            continue
+        x.blk[out] = c.blk[b]
+        x.arrivals[out] = c.arrivals[b]
+        x.last[out] = c.last[b]
+        x.h[out] = c.h[b]
+        x.label[out] = c.label[b]
+        x.missed[out] = c.missed[b]
+        x.key[out] = h
+        x.score[out] = w.score[j]
+        x.ahead[out] = w.rank[j] - w.score[j]
+        if i >= 0:
+            steps = w.steps[j]
+            t = c.blk[b, i, PERIOD]
+            ptt = c.blk[b, i, P_TT]
+            ptx = c.blk[b, i, P_TX]
+            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q
+            p_tx = ptx + steps * ptt
+            p_xx = w.s[j] - jitter_var
+            inv_s = 1.0 / w.s[j]
+            g = w.e[j] * inv_s
+            r_s = jitter_var * inv_s
+            # (2.15), written as in kalman.update (P R / S: no cancellation)
+            x.blk[out, i, PERIOD] = t + p_tx * g
+            x.blk[out, i, TAU] = c.blk[b, i, TAU] + steps * t + p_xx * g
+            x.blk[out, i, P_TT] = ptt - p_tx * p_tx * inv_s
+            x.blk[out, i, P_TX] = p_tx * r_s
+            x.blk[out, i, P_XX] = p_xx * r_s
+            x.arrivals[out, i] += int(steps)
+            x.last[out, i] = k
+            x.h[out, i] = w.h[j]
+            x.label[out, slot] = i
+            x.missed[out, slot] = int(steps) - 1
+        else:
+            x.label[out, slot] = n
+            x.missed[out, slot] = 0
+        out += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _prune(size, decided, label, c):
+    """N-scan pruning: keep (in order) the hypotheses that gave pulse `decided` the label `label`."""
+    slot = decided % c.label.shape[1]
+    out = 0
+    for b in range(size):
+        if c.label[b, slot] == label:
+            if out != b:
+                c.blk[out] = c.blk[b]
+                c.arrivals[out] = c.arrivals[b]
+                c.last[out] = c.last[b]
+                c.key[out] = c.key[b]
+                c.score[out] = c.score[b]
+                c.h[out] = c.h[b]
+                c.ahead[out] = c.ahead[b]
+                c.label[out] = c.label[b]
+                c.missed[out] = c.missed[b]
+            out += 1
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -314,47 +359,40 @@ def _rates(cfg, counts):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, first, scratch, cfg, counts, labels, n_labels):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, w, cfg, counts, labels, n_labels):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
     `swapped` when the beam now lives in `nxt`."""
-    n = prior.shape[0]
+    n = cur.blk.shape[1]
     ring = cfg.nscan + 1
     newest = toa[n_seen - 1]
     swapped = False
-    cb, ci, ck, cs, ce, cv = scratch
     while k < n_seen:
         y = toa[k]
         starting = y <= cfg.start_until
-        ahead = 0.0
+        ahead = cfg.horizon
+        width = cfg.beam
         if starting:
-            ahead = cfg.horizon
+            ahead = cfg.horizon_start
+            width = cfg.start_beam
         if not ended and n_seen - 1 - k < cfg.reserve and newest < y + ahead:
             break
         log_q, log_1mq, log_rho = _rates(cfg, counts)
-        if starting:
-            _first_scores(toa, n_seen, k, prior, cfg.gate2, cfg.jitter_var, cfg.interval_var, log_q, log_1mq,
-                          cfg.look, first)
         if swapped:
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        width = cfg.beam
-        if starting:
-            width = cfg.start_beam
-        size = _step(y, k, size, a[0], a[1], a[2], a[3], a[4], a[5], a[6], b[0], b[1], b[2], b[3], b[4], b[5], b[6],
-                     zob, width, cfg.gate2, cfg.jitter_var, cfg.interval_var,
-                     log_q, log_1mq, cfg.log_gap, log_rho, first, starting, cb, ci, ck, cs, ce, cv)
+        size = _step(toa, n_seen, k, size, a, b, zob, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:
             slot = decided % ring
-            label = b[5][0, slot]
-            _count(counts, label, b[6][0, slot], n)
+            label = b.label[0, slot]
+            _count(counts, label, b.missed[0, slot], n)
             labels[n_labels] = label
             n_labels += 1
-            size = _prune(size, decided, label, b[0], b[1], b[2], b[3], b[4], b[5], b[6])
+            size = _prune(size, decided, label, b)
         k += 1
     if ended and k == n_seen:  # the best hypothesis labels the undecided tail
         best = cur
@@ -362,8 +400,8 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, first, scratch, cfg,
             best = nxt
         for j in range(n_labels, n_seen):
             slot = j % ring
-            _count(counts, best[5][0, slot], best[6][0, slot], n)
-            labels[j] = best[5][0, slot]
+            _count(counts, best.label[0, slot], best.missed[0, slot], n)
+            labels[j] = best.label[0, slot]
         n_labels = n_seen
     return k, size, swapped, n_labels
 
@@ -387,10 +425,10 @@ class MHT:
     they leave unknown; "estimate": estimate both online whatever the priors say), `batch` (pulses
     buffered per call of the compiled driver; labels do not depend on it)."""
 
-    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look: int = 3, lag: int = 512,
-                 gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64):
+    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
+                 lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
-                            ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1)):
+                            ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         if nscan > lag:
@@ -401,7 +439,8 @@ class MHT:
             raise ValueError(f"p_gap={p_gap!r} must be in (0, 1)")
         if rates not in ("priors", "estimate"):
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
-        self.beam, self.start_beam, self.nscan, self.look, self.lag = beam, max(start_beam, beam), nscan, look, lag
+        self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
+        self.look_start, self.look = look_start, look
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -421,10 +460,7 @@ class MHT:
         self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
         self.cur.blk[0] = self.prior
         self.size = 1
-        c = cap * (2 * n + 1)
-        self.scratch = (np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c),
-                        np.zeros(c))
-        self.first = np.zeros(n)
+        self.scratch = Scratch.empty(cap * (2 * n + 1), n, max(self.look, self.look_start))
         rng = np.random.default_rng(0x5EED)
         self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
         # the key of "no pulse yet": every source's entry for last = -1 (index mask)
@@ -437,9 +473,10 @@ class MHT:
             known_q=float(priors.missing_prob) if stated else math.nan,
             known_r=float(priors.spurious_rate) if stated else math.nan,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
-            horizon=(self.look + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
-            beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look=self.look,
-            reserve=self.lag - self.nscan)
+            horizon_start=(self.look_start + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
+            horizon=(self.look + 0.5) * t_max * 1.05,
+            beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
+            look=self.look, reserve=self.lag - self.nscan)
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
@@ -467,8 +504,8 @@ class MHT:
 
     def _run(self) -> None:
         self.k, self.size, swapped, self.n_labels = _run(
-            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
-            self.first, self.scratch, self.cfg, self.counts, self.labels, self.n_labels)
+            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.scratch,
+            self.cfg, self.counts, self.labels, self.n_labels)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
 

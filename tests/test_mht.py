@@ -129,11 +129,11 @@ def test_mht_compiled_equals_interpreted(monkeypatch):
                         sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
                         priors=PriorSpec(period_error=0.01, phase_error=0.05))
     ep = simulate(spec, 5)
-    policy = "mht:beam=8,start_beam=16,nscan=6,lag=40"
+    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120"
     compiled = play(make_policy(policy), ep).labels
     if not mht_module.HAVE_NUMBA:
         pytest.skip("numba is not installed: only the interpreted path exists")
-    for name in ("_step", "_first_scores", "_prune", "_rates", "_run", "_count"):
+    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count"):
         monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)
     interpreted = play(make_policy(policy), ep).labels
     np.testing.assert_array_equal(compiled, interpreted)

@@ -136,6 +136,7 @@ class Settings(NamedTuple):
     nscan: int
     look_start: int  # arrivals looked ahead when a track takes its first pulse
     look: int  # and later
+    dead: int  # arrivals a track must have missed in a row before it may restart
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
 
 
@@ -190,7 +191,7 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
 
 
 @njit(cache=True, nogil=True)
-def _step(toa, n_seen, k, size, c, x, zob, width, look, cfg, log_q, log_1mq, log_rho, w):
+def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
     track has no good continuation loses at once instead of a period later."""
@@ -252,6 +253,30 @@ def _step(toa, n_seen, k, size, c, x, zob, width, look, cfg, log_q, log_1mq, log
                 w.e[nc] = e
                 w.s[nc] = s
                 nc += 1
+            # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
+            # and is back with a phase uniform over its period, its period from the prior
+            if near - 1.0 >= cfg.dead:
+                hv = 0.0
+                found = False
+                for q in range(w.used[i]):
+                    if w.cache_last[i, q] == -2:
+                        hv = w.cache_val[i, q]
+                        found = True
+                        break
+                if not found:
+                    hv = _future(toa, n_seen, k, prior[i, PERIOD], y, prior[i, P_TT], 0.0, jitter_var, cfg.look_start,
+                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack)
+                    if w.used[i] < _CACHE:
+                        q = w.used[i]
+                        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv
+                        w.used[i] += 1
+                w.parent[nc] = b
+                w.source[nc] = i
+                w.steps[nc] = -near  # negative: a restart after `near` arrivals
+                w.score[nc] = c.score[b] + log_1mq + cfg.log_gap - math.log(prior[i, PERIOD])
+                w.h[nc] = hv
+                w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
+                nc += 1
         w.parent[nc] = b
         w.source[nc] = -1
         w.score[nc] = c.score[b] + log_rho
@@ -292,7 +317,18 @@ def _step(toa, n_seen, k, size, c, x, zob, width, look, cfg, log_q, log_1mq, log
         x.key[out] = h
         x.score[out] = w.score[j]
         x.ahead[out] = w.rank[j] - w.score[j]
-        if i >= 0:
+        if i >= 0 and w.steps[j] < 0:  # a restart at y
+            x.blk[out, i, PERIOD] = prior[i, PERIOD]
+            x.blk[out, i, TAU] = y
+            x.blk[out, i, P_TT] = prior[i, P_TT]
+            x.blk[out, i, P_TX] = 0.0
+            x.blk[out, i, P_XX] = jitter_var
+            x.arrivals[out, i] += int(-w.steps[j])
+            x.last[out, i] = k
+            x.h[out, i] = w.h[j]
+            x.label[out, slot] = i
+            x.missed[out, slot] = 0  # an on/off switch, not misses
+        elif i >= 0:
             steps = w.steps[j]
             t = c.blk[b, i, PERIOD]
             ptt = c.blk[b, i, P_TT]
@@ -359,7 +395,7 @@ def _rates(cfg, counts):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, w, cfg, counts, labels, n_labels):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
@@ -383,7 +419,7 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, w, cfg, counts, labels, n_l
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        size = _step(toa, n_seen, k, size, a, b, zob, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:
@@ -426,9 +462,11 @@ class MHT:
     buffered per call of the compiled driver; labels do not depend on it)."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
-                 lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64):
+                 lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
+                 dead: int = 3):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
-                            ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1)):
+                            ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
+                            ("dead", dead, 1)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         if nscan > lag:
@@ -440,7 +478,7 @@ class MHT:
         if rates not in ("priors", "estimate"):
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
         self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
-        self.look_start, self.look = look_start, look
+        self.look_start, self.look, self.dead = look_start, look, dead
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -474,9 +512,9 @@ class MHT:
             known_r=float(priors.spurious_rate) if stated else math.nan,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
             horizon_start=(self.look_start + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
-            horizon=(self.look + 0.5) * t_max * 1.05,
+            horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
             beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
-            look=self.look, reserve=self.lag - self.nscan)
+            look=self.look, dead=self.dead, reserve=self.lag - self.nscan)
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
@@ -504,7 +542,7 @@ class MHT:
 
     def _run(self) -> None:
         self.k, self.size, swapped, self.n_labels = _run(
-            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.scratch,
+            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
             self.cfg, self.counts, self.labels, self.n_labels)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur

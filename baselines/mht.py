@@ -6,35 +6,46 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 
 - Gating.  For every hypothesis and source, the source's next arrival nearest to y is its k-th
   predicted arrival after its last pulse, k = max(1, round((y - tau) / T)); k - 1 arrivals were
-  missed.  The k-step prediction of (2.8) (closed form, cumulative jitter added k times) gives the
-  innovation e and its variance S = H P H' + R (2.15); the source is a candidate only when
-  e^2 <= gate^2 S.  Only gated candidates are scored and updated, so the expensive part of a pulse
-  grows with the number of gated candidates, not with the number of sources N.
+  missed (k = 1 is tried too, for a period still uncertain).  The k-step prediction of (2.8) (closed
+  form, cumulative jitter added k times) gives the innovation e and its variance S = H P H' + R
+  (2.15); the source is a candidate only when e^2 <= gate^2 S.  Only gated candidates are scored,
+  looked ahead and updated, so the expensive part of a pulse grows with the number of gated
+  candidates, not with the number of sources N (the gate test itself is a few flops per source).
 - Scores (proper log-likelihoods, densities per unit time).  "Source i after m = k - 1 misses":
-  log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), with
-  a long run of misses costing at most `log p_gap` (a source that was off: dropouts and late onsets,
-  MK94 VI-C-3, are then picked up instead of being written off).  "Spurious": log rho, rho the
-  intensity of DM89's Bernoulli spurious impulses read as a Poisson stream: spurious_rate r (per
-  source pulse) times the sources' pulse rate sum_i 1/T_i.  Comparing the two is Theorem 1's MAP
-  test (21)-(24) made part of the hypothesis score instead of a hard decision.
-- Beam.  The children of all hypotheses are ranked by score; the best `beam` distinct ones survive.
-  Two children whose sources all last fired on the same pulses continue identically up to their
-  period estimates, so only the better is kept (the survivor rule of MK94's FDP (3.2)); they are
-  found by a Zobrist hash of the per-source last pulses.
-- Fixed lag and N-scan pruning.  Pulse k - lag is labelled with the best hypothesis's label for it,
-  and every hypothesis disagreeing on that pulse is dropped (N-scan pruning with N = lag), so later
-  decisions are consistent with earlier ones.
+  log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), a
+  long run of misses costing at most `log p_gap`.  "Spurious": log rho, rho the intensity of DM89's
+  Bernoulli spurious impulses read as a Poisson stream: spurious_rate r (per source pulse) times
+  the sources' pulse rate sum_i 1/T_i.  Comparing the two is Theorem 1's MAP test (21)-(24) made
+  part of the hypothesis score instead of a hard decision.
+- Look-ahead ranking (MK94 III's idea: judge an assignment by the errors that follow it).  Pulses
+  are buffered (the policy's lag) so that, when a track takes a pulse, a small tree search over the
+  buffered pulses scores its next `look` arrivals (`_future`); children are ranked by score plus the
+  sum of their tracks' look-ahead scores.  A pulse given to the wrong track then loses at once,
+  instead of a period later when the beam has long forgotten the alternative.
+- Beam.  The best `beam` distinct children survive.  Two children whose sources all last fired on
+  the same pulses continue identically up to their period estimates, so only the better is kept
+  (the survivor rule of MK94's FDP (3.2)); they are found by a Zobrist hash of the per-source last
+  pulses.
+- Fixed lag and N-scan pruning.  Pulse k - nscan is labelled with the best hypothesis's label for it,
+  and every hypothesis disagreeing on that pulse is dropped (N-scan pruning), so later decisions are
+  consistent with earlier ones.
 - Track initiation.  In dense scenes the first arrivals of many sources fall within each other's
-  phase gates, and a greedy tracker lets a neighbour capture a source's first pulse.  Until the
-  longest prior period has passed twice (every source has had its second pulse, which settles who
-  took which first pulse), the beam is `start_beam` wide, and the lag is the look-ahead that lets the
-  second arrivals decide.
+  phase gates, and a tracker without look-ahead lets a neighbour capture a source's first pulse.  A
+  track's first pulse is judged by `look_start` (6) arrivals ahead, and until the longest prior period
+  has passed the beam is `start_beam` wide.
+- Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
+  restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
+  period), its period reset to the prior, judged by `look_start` arrivals ahead.  A source that
+  starts late, stops, or was captured by a neighbour at the start is picked up again.
 - Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
   with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
   r = (spurious + 1) / (arrivals + 20).  Stated rates are used as given (floored so a log stays finite).
 
-The per-pulse step is one compiled function (numba, when installed); without numba the very same
-function runs as Python (identical labels, ~100x slower: fine for tests and short files).
+The driver (`_run`: a batch of buffered pulses per call, decisions and rate estimates included) is
+compiled by numba when it is installed (the `fast` extra); without numba the very same functions
+run as Python: identical labels (tested), ~100x slower, fine for tests and short files.  numba stays
+optional because the core dependencies are numpy, scipy, gymnasium and scikit-learn, and nothing
+else in the project needs it.
 """
 
 from __future__ import annotations

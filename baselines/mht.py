@@ -165,6 +165,9 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
     if look <= 0:
         return 0.0
     newest = toa[n_seen - 1]
+    # branch and bound: no arrival scores more than a hit with S = R (its least variance), a miss, or
+    # the 0 of an arrival beyond the buffer
+    most = max(log_1mq - 0.5 * (_LOG_2PI + math.log(jitter_var)), log_q, 0.0)
     st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
     st[0, 5], st[0, 6], st[0, 7] = 1.0, 0.0, 0.0
     top = 1
@@ -182,6 +185,8 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             if total > best:
                 best = total
             continue
+        if total + (look - depth) * most <= best:
+            continue
         lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
         hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
         if hi - lo > _BRANCH:  # keep the _BRANCH nearest
@@ -190,7 +195,19 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             hi = min(hi, lo + _BRANCH)
         st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0  # the miss branch
         top += 1
-        for j in range(lo, hi):
+        # hits, the farthest pushed first so the nearest is searched first (a good bound early)
+        c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+        left, right = c - 1, c
+        order = np.empty(hi - lo, np.int64)
+        for r in range(hi - lo):  # nearest first, merging outwards from the predicted arrival
+            if right < hi and (left < lo or toa[right] - pred < pred - toa[left]):
+                order[r] = right
+                right += 1
+            else:
+                order[r] = left
+                left -= 1
+        for r in range(hi - lo - 1, -1, -1):
+            j = order[r]
             e = toa[j] - pred
             g, r_s = e / s, jitter_var / s
             st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
@@ -531,6 +548,7 @@ class MHT:
         self.labels = np.zeros(1024, np.int64)
         self.n_seen = self.n_labels = 0
         self.k = 0  # next pulse to process
+        self.called = 0  # pulses seen at the last driver call
         self.ended = False
         self.steps = 0
 
@@ -541,7 +559,9 @@ class MHT:
                 self.labels = np.concatenate([self.labels, np.zeros(self.labels.size, np.int64)])
             self.toa[self.n_seen] = float(obs["toa"][0])
             self.n_seen += 1
-            if self.n_seen - self.k >= self.batch or self.n_seen - 1 - self.k >= self.lag - self.nscan:
+            # the driver is called every `batch` pulses (its call costs far more than a pulse) or when a
+            # decision is due
+            if self.n_seen - self.called >= self.batch or self.n_seen - 1 - self.k >= self.lag - self.nscan:
                 self._run()
         elif not self.ended:
             self.ended = True
@@ -552,6 +572,7 @@ class MHT:
         return int(self.labels[t]) if 0 <= t < self.n_labels else 0
 
     def _run(self) -> None:
+        self.called = self.n_seen
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
             self.cfg, self.counts, self.labels, self.n_labels)

@@ -35,7 +35,8 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   has passed the beam is `start_beam` wide.
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
   restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
-  period), its period reset to the prior, judged by `look_start` arrivals ahead.  A source that
+  period), its period kept (or reset to the prior when it has left the prior by more than 2
+  deviations: a captured track), judged by `look_start` arrivals ahead.  A source that
   starts late, stops, or was captured by a neighbour at the start is picked up again.
 - Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
   with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
@@ -219,6 +220,15 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
 
 
 @njit(cache=True, nogil=True)
+def _restart_period(t, ptt, prior_t, prior_tt):
+    """The period a restarting track starts from: its own estimate, unless that has left the prior by
+    more than 2 prior deviations (a track captured by a neighbour), then the prior's."""
+    if (t - prior_t) ** 2 > 4.0 * prior_tt:
+        return prior_t, prior_tt
+    return t, ptt
+
+
+@njit(cache=True, nogil=True)
 def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
@@ -283,7 +293,8 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 nc += 1
             # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
             # and is back with a phase uniform over its period, its period from the prior
-            if near - 1.0 >= cfg.dead:
+            # (counted with the longest plausible period: a period still unknown restarts nothing)
+            if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)):
                 hv = 0.0
                 found = False
                 for q in range(w.used[i]):
@@ -292,7 +303,8 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                         found = True
                         break
                 if not found:
-                    hv = _future(toa, n_seen, k, prior[i, PERIOD], y, prior[i, P_TT], 0.0, jitter_var, cfg.look_start,
+                    rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
+                    hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_start,
                                  gate2, jitter_var, interval_var, log_q, log_1mq, w.stack)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
@@ -346,9 +358,10 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         x.score[out] = w.score[j]
         x.ahead[out] = w.rank[j] - w.score[j]
         if i >= 0 and w.steps[j] < 0:  # a restart at y
-            x.blk[out, i, PERIOD] = prior[i, PERIOD]
+            rt, rtt = _restart_period(c.blk[b, i, PERIOD], c.blk[b, i, P_TT], prior[i, PERIOD], prior[i, P_TT])
+            x.blk[out, i, PERIOD] = rt
             x.blk[out, i, TAU] = y
-            x.blk[out, i, P_TT] = prior[i, P_TT]
+            x.blk[out, i, P_TT] = rtt
             x.blk[out, i, P_TX] = 0.0
             x.blk[out, i, P_XX] = jitter_var
             x.arrivals[out, i] += int(-w.steps[j])

@@ -133,7 +133,7 @@ def test_mht_compiled_equals_interpreted(monkeypatch):
     compiled = play(make_policy(policy), ep).labels
     if not mht_module.HAVE_NUMBA:
         pytest.skip("numba is not installed: only the interpreted path exists")
-    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count"):
+    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period"):
         monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)
     interpreted = play(make_policy(policy), ep).labels
     np.testing.assert_array_equal(compiled, interpreted)

@@ -29,6 +29,9 @@ POLICIES = (
     PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED,
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),
+    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED,
+               description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
+                           "spurious pulses scored; unknown rates estimated online"),
     PolicyInfo("ekf-bank", "baselines.ekf:EKFBank", modes=ANCHORED,
                description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
                            "phase initialisations; labels from the best filter's predicted arrivals"),

@@ -46,7 +46,7 @@ so a source that stops, starts late or misses pulses is picked up where it is.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -164,6 +164,104 @@ class FDPCore:
         return self.surv[int(np.argmin(self.r))] if self.r is not None else self.surv[0]
 
 
+class GatedLevel(NamedTuple):
+    """One level of a gated continuation tree: its nodes (M, N, fields), the cost of each node's pulse,
+    the cumulative look-ahead cost from level 1 down to it, its source, and its level-0 and level-1
+    ancestors (level-0 ancestor = the survivor i, level-1 ancestor = the pair (i, j) as i * N + j)."""
+
+    nodes: np.ndarray
+    cost: np.ndarray
+    total: np.ndarray
+    src: np.ndarray
+    root: np.ndarray
+    pair: np.ndarray
+
+
+class GatedFDPCore(FDPCore):
+    """FDP whose tree keeps only gated continuations: a node's source must predict the pulse within
+    `gate` innovation deviations (e^2 <= gate^2 S), as `mht` gates its candidates.  Everything else
+    is the recursion of `FDPCore`, with the same arithmetic in the same order, so where the gate
+    removes nothing the labels are the same bit for bit (tested); the tree holds a few nodes per
+    survivor instead of N^(Delta+1), and a pulse costs O(gated continuations), not O(N^(Delta+1)).
+    A node none of whose sources gates the pulse keeps its nearest source (FDP must assign every
+    pulse), so the tree never empties."""
+
+    def __init__(self, priors: Priors, accumulate: str, likelihood: bool, init: str, gate: float):
+        super().__init__(priors, accumulate, False, likelihood, init)
+        self.gate2 = gate * gate
+
+    def tree(self, ys: list[float]) -> list:
+        n, m = self.n, self.model
+        first = self.r is None and self.first_no_predict
+        # level 0: survivor i fires source i at y_k, kept when source i gates y_k
+        nodes = self.surv.copy()
+        b = _block(nodes[np.arange(n), np.arange(n)][:, None, :])
+        pred = b if first else predict(b, m)
+        e, s = innovation(pred, ys[0], m)
+        z = (e * e / s)[:, 0]
+        keep = np.flatnonzero(z <= self.gate2)
+        if keep.size == 0:  # no survivor's source gates y_k: the nearest one goes on
+            keep = np.array([int(np.argmin(z))])
+        lv0 = nodes[keep]
+        cost0 = _fire(lv0, keep, ys[0], m, self.likelihood, first)
+        levels = [GatedLevel(lv0, cost0, np.zeros(keep.size), keep, keep, keep)]
+        for lev, y in enumerate(ys[1:], start=1):
+            par = levels[-1]
+            b = _block(par.nodes)
+            e, s = innovation(predict(b, m), y, m)
+            z = e * e / s
+            rows, cols = np.nonzero(z <= self.gate2)  # (parent, source) pairs that gate y
+            lone = np.ones(z.shape[0], dtype=bool)
+            lone[rows] = False
+            if lone.any():  # a node none of whose sources gates y keeps its nearest one
+                extra = np.flatnonzero(lone)
+                rows, cols = np.r_[rows, extra], np.r_[cols, np.argmin(z[extra], axis=1)]
+            kids = par.nodes[rows]
+            cost = _fire(kids, cols, y, m, self.likelihood)
+            total = cost if lev == 1 else par.total[rows] + cost
+            pair = par.root[rows] * n + cols if lev == 1 else par.pair[rows]
+            levels.append(GatedLevel(kids, cost, total, cols, par.root[rows], pair))
+        return levels
+
+    def lookahead_costs(self, levels) -> np.ndarray:
+        if not isinstance(levels[0], GatedLevel):
+            return super().lookahead_costs(levels)
+        n = self.n
+        leaf = levels[-1]
+        c = np.full(n * n, np.inf)
+        np.minimum.at(c, leaf.pair, leaf.total)
+        return c.reshape(n, n)
+
+    def commit(self, levels, c: np.ndarray | None) -> int:
+        if not isinstance(levels[0], GatedLevel):
+            return super().commit(levels, c)
+        n = self.n
+        lv0 = levels[0]
+        cost0 = np.full(n, np.inf)
+        cost0[lv0.root] = lv0.cost
+        if self.r is None:
+            self.r = cost0.copy()  # the first pulse's own error starts the costs
+        if c is None:
+            return int(np.argmin(self.r))
+        cost1 = np.full(n * n, np.inf)
+        cost1[levels[1].pair] = levels[1].cost
+        cost1 = cost1.reshape(n, n)
+        with np.errstate(invalid="ignore"):
+            tot = self.r[:, None] + c
+        phi = np.argmin(tot, axis=0)  # (3.2)
+        cols = np.arange(n)
+        best = tot[phi, cols]
+        label = int(phi[int(np.argmin(best))])
+        self.r = best if self.accumulate == "lookahead" else self.r[phi] + cost1[phi, cols]
+        # (3.3): survivor j continues the KF of survivor phi^j after y_k (where that node exists)
+        node0 = np.full(n, -1)
+        node0[lv0.root] = np.arange(lv0.root.size)
+        ok = node0[phi] >= 0
+        self.surv[ok] = lv0.nodes[node0[phi[ok]]]
+        self.r[~ok] = np.inf
+        return label
+
+
 class FDP:
     """MK94 forward dynamic programming with look-ahead Delta (policies `fdp`, `fdp-ll`).
 
@@ -171,13 +269,15 @@ class FDP:
     `init` ("phase" or the literal "mk94"), `cost` ("raw" squared errors (2.18), or "likelihood":
     e^2/S + log S, which weighs each error by its predicted spread), `missing` / `supernumerary` /
     `spurious_penalty` (section VI-A), `dropout` and `gate` (section VI-C-3: coasting through missed
-    arrivals), `reuse` (keep the tree; same labels).
+    arrivals), `reuse` (keep the tree; same labels), `tree_gate` (None: the full tree; a number g: only
+    continuations whose source predicts the pulse within g innovation deviations, `GatedFDPCore`:
+    what makes 16-32 sources affordable; the same labels where the gate removes nothing).
     The lag is Delta, or Delta + 1 with `supernumerary`.
     """
 
     def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
-                 dropout: bool = False, gate: float = 5.0, reuse: bool = True):
+                 dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None):
         if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
             raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
         for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
@@ -186,6 +286,9 @@ class FDP:
                 raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")
         if not gate > 0:
             raise ValueError(f"gate={gate!r} must be > 0")
+        if tree_gate is not None and not tree_gate > 0:
+            raise ValueError(f"tree_gate={tree_gate!r} must be > 0 (or None: the full tree)")
+        self.tree_gate = None if tree_gate is None else float(tree_gate)
         if not spurious_penalty >= 0:
             raise ValueError(f"spurious_penalty={spurious_penalty!r} must be >= 0")
         self.spurious_penalty = float(spurious_penalty)
@@ -197,10 +300,13 @@ class FDP:
         self.lag = lookahead + (1 if supernumerary else 0)
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
+        if self.tree_gate is not None:
+            self.core = GatedFDPCore(priors, self.accumulate, self.cost == "likelihood", self.init, self.tree_gate)
+        elif float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
             raise ValueError(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
                              f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6")
-        self.core = FDPCore(priors, self.accumulate, self.reuse, self.cost == "likelihood", self.init)
+        else:
+            self.core = FDPCore(priors, self.accumulate, self.reuse, self.cost == "likelihood", self.init)
         self.spurious = priors.n_labels
         self.ys: list[float] = []
         self.stream: list[int] = []  # received index of each internal pulse (a merged pulse twice)

@@ -38,6 +38,10 @@ arrivals in a row (a detected dropout; needs coasting) by raising its arrival va
 biased by a wrongly taken pulse, or a source that starts late, is acquired again.  Both are off in
 pt-post (the paper); `dokf` uses coast=True, reset_after=4 (chosen on robust-v0 train seeds: a
 smaller k loses sources of near-equal period whose pulses merge several times in a row).
+
+An unknown spurious rate (NaN in the priors, or `rates="estimate"`) is estimated online from the
+tracker's own decisions with a weak Beta prior (mean 0.05, worth 20 pulses): lambda = (spurious
+called + 1) / (pulses + 20), so Theorem 1's threshold follows the channel.
 """
 
 from __future__ import annotations
@@ -57,6 +61,8 @@ from deint_env.policies import policy_rng
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depend on the chunking
 _MAX_COAST = 64  # missed arrivals skipped per pulse at most
+_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown spurious fraction
+RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
 TEACHERS = ("prior", "posterior", "decision")
 
@@ -69,7 +75,7 @@ class ProbabilisticTeacher:
     lag = 0
 
     def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool = False,
-                 gate: float = 5.0, reset_after: int | None = None):
+                 gate: float = 5.0, reset_after: int | None = None, rates: str = "priors"):
         if teacher not in TEACHERS:
             raise ValueError(f"teacher={teacher!r} must be one of {', '.join(TEACHERS)}")
         if label not in LABELS:
@@ -80,7 +86,9 @@ class ProbabilisticTeacher:
             raise ValueError(f"gate={gate!r} must be > 0")
         if reset_after is not None and (not isinstance(reset_after, int) or reset_after < 1):
             raise ValueError(f"reset_after={reset_after!r} must be None or an integer >= 1")
-        self.teacher, self.label, self.seed = teacher, label, seed
+        if rates not in RATES:
+            raise ValueError(f"rates={rates!r} must be one of {', '.join(RATES)}")
+        self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
         self.coast, self.gate, self.reset_after = bool(coast), float(gate), reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -93,7 +101,10 @@ class ProbabilisticTeacher:
         self.log_pi = np.log(pi)
         self._cum_pi = np.cumsum(pi / pi.sum()).tolist()
         self._cum_pi[-1] = math.inf  # u < 1 always lands on a source
-        self._lam = priors.spurious_rate / (1.0 + priors.spurious_rate)
+        r = priors.spurious_rate
+        self._estimate = self.rates == "estimate" or math.isnan(r)
+        self._lam = _PRIOR_MEAN if self._estimate else r / (1.0 + r)
+        self._pulses = self._called = 0  # pulses seen, called spurious (for an estimated rate)
         self._rng = policy_rng(info, self.seed)
         self._u: list[float] = []
         self._posterior = self.teacher != "prior" or self.label == "map"
@@ -140,8 +151,12 @@ class ProbabilisticTeacher:
             return j
         logp, pred, e, s = self.posterior(y)
         best = int(np.argmax(logp))
+        if self._estimate:
+            self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
+            self._pulses += 1
         if self._lam > 0 and self.teacher != "prior" and is_spurious(
                 float(e[best]), float(s[best]), self._lam, float(pred.period[best]) ** 2 / 12.0):
+            self._called += 1
             return self.n
         if self.teacher == "prior":
             j = bisect_right(self._cum_pi, u)
@@ -170,13 +185,13 @@ class PTPost(ProbabilisticTeacher):
     """`pt-post`: MK94 IV, the source drawn from the a-posteriori probabilities (4.1)-(4.3)."""
 
     def __init__(self, label: str = "sample", seed: int | None = None, coast: bool = False, gate: float = 5.0,
-                 reset_after: int | None = None):
-        super().__init__("posterior", label, seed, coast, gate, reset_after)
+                 reset_after: int | None = None, rates: str = "priors"):
+        super().__init__("posterior", label, seed, coast, gate, reset_after, rates)
 
 
 class DOKFTracker(ProbabilisticTeacher):
     """`dokf`: the PT's tracker taught by its own MAP decisions, with DM89's Theorem 1 spurious test,
     coasting through missed arrivals and dropout resets (deterministic: it draws nothing)."""
 
-    def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4):
-        super().__init__("decision", "map", None, coast, gate, reset_after)
+    def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors"):
+        super().__init__("decision", "map", None, coast, gate, reset_after, rates)

@@ -12,14 +12,17 @@ from deint_env.errors import DeintError
 
 
 SCALARS = ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate", "coincidence_resolution")
+RATES = ("missing_prob", "spurious_rate")  # NaN = unknown (a policy estimates it), distinct from 0
 
 
 @dataclass(frozen=True, eq=False)
 class Priors:
     """The public priors handed to a policy at reset: never the truth.
 
-    Arrays have one entry per prior track (label 0..n_labels-1); an unknown phase is NaN.  The scalar
-    channel statistics (jitter, missing and spurious rates) are treated as known, as in the papers.
+    Arrays have one entry per prior track (label 0..n_labels-1); an unknown phase is NaN.  The jitters
+    and the coincidence resolution are treated as known, as in the papers.  The missing and spurious
+    rates may be unknown (NaN): a priors file that does not state them (or states null) leaves them
+    unknown, not zero; simulated episodes state their true rates.
     `spurious_rate` is in spurious pulses per source pulse.
     """
 
@@ -67,16 +70,20 @@ class Priors:
         return cls(**kw)
 
     # ---- the priors file of docs/design.md section 7 --------------------------------------------
+    def known_scalars(self) -> dict[str, float]:
+        """The scalars, unknown rates left out."""
+        return {k: getattr(self, k) for k in SCALARS if not (k in RATES and math.isnan(getattr(self, k)))}
+
     def to_json_dict(self) -> dict[str, Any]:
-        """`{"period": [...], "phase": [...], "jitter_std": s, ...}`; unknown phases are left out."""
+        """`{"period": [...], "phase": [...], "jitter_std": s, ...}`; unknown phases and rates are left out."""
         if self.blind:
-            return {"blind": True, "label_budget": self.n_labels, **{k: getattr(self, k) for k in SCALARS}}
+            return {"blind": True, "label_budget": self.n_labels, **self.known_scalars()}
         out: dict[str, Any] = {"period": self.period.tolist()}
         if np.all(np.isfinite(self.phase)):
             out["phase"] = self.phase.tolist()
             out["phase_std"] = self.phase_std.tolist()
         out.update(period_std=self.period_std.tolist(), source_prob=self.source_prob.tolist(),
-                   **{k: getattr(self, k) for k in SCALARS})
+                   **self.known_scalars())
         if self.amplitude is not None:
             out["amplitude"] = self.amplitude.tolist()
             out["amplitude_std"] = self.amplitude_std.tolist()
@@ -94,9 +101,12 @@ class Priors:
             raise DeintError(f"{where}: key {unknown[0]!r} is unknown; allowed: {', '.join(sorted(allowed))}")
 
         def scalar(key: str, default: float, lo: float = 0.0, hi: float = math.inf) -> float:
+            if key in RATES and d.get(key) is None:
+                return math.nan  # not stated (or null): unknown
             v = d.get(key, default)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not (lo <= v <= hi):
-                raise DeintError(f"{where}: {key}={v!r} must be a number in [{lo}, {hi}]")
+                unknown_ok = " or null (unknown)" if key in RATES else ""
+                raise DeintError(f"{where}: {key}={v!r} must be a number in [{lo}, {hi}]{unknown_ok}")
             return float(v)
 
         def _scalars() -> dict[str, float]:

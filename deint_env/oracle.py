@@ -164,8 +164,10 @@ def priors_genie_labels(toa: np.ndarray, priors: Priors) -> np.ndarray:
         k = k[k >= 0]
         sched.append(ph + k * t), srcs.append(np.full(k.size, i))
     rate = float(np.sum(1.0 / priors.period))
-    src = genie_labels(toa, np.concatenate(sched), np.concatenate(srcs), priors.jitter_std, priors.missing_prob,
-                       priors.spurious_rate * rate, resolution)
+    # rates a file leaves unknown (NaN): the genie labels as if there were no misses or spurious pulses
+    missing, spurious = np.nan_to_num([priors.missing_prob, priors.spurious_rate])
+    src = genie_labels(toa, np.concatenate(sched), np.concatenate(srcs), priors.jitter_std, float(missing),
+                       float(spurious) * rate, resolution)
     return np.where(src < 0, priors.n_labels, src)
 
 

@@ -214,3 +214,20 @@ def test_bad_parameters_and_oversized_trees_are_clear_errors():
         play(FDP(lookahead=20), ep)
     with pytest.raises(DeintError, match="max_pulses"):
         play(TreeSearch(max_pulses=5), ep)
+
+
+@pytest.mark.parametrize("name,seed,kw", [("core-n3-spread4-jitter0.2", 1000000, ""),
+                                          ("core-n2-spread1.5-jitter0.5", 1000001, ",cost=likelihood"),
+                                          ("paper-v0/mk94-two-var1", 1000000, ""),
+                                          ("paper-v0/mk94-two-var1", 1000000, ",missing=true")])
+def test_gated_fdp_equals_the_full_tree_where_the_gate_removes_nothing(name, seed, kw):
+    """`tree_gate` keeps only continuations whose source predicts the pulse within the gate; with a
+    gate no continuation that matters falls outside, the labels are those of the full tree."""
+    from deint_env.suites import find_entry
+    ep = simulate(find_entry(name).spec.replace(n_pulses=300), seed)
+    full = play(make_policy("fdp:lookahead=3" + kw), ep).labels
+    gated = play(make_policy("fdp:lookahead=3,tree_gate=8" + kw), ep).labels
+    np.testing.assert_array_equal(full, gated)
+    # a gate too narrow for the channel does change them: the gate is really applied
+    narrow = play(make_policy("fdp:lookahead=3,tree_gate=0.05" + kw), ep).labels
+    assert not np.array_equal(full, narrow)

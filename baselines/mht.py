@@ -1,0 +1,589 @@
+"""`mht`: a gated multi-hypothesis tracker (hypothesis-oriented MHT as a beam search) on the DLM of MK94.
+
+A hypothesis is one labelling of the pulses so far; its state is MK94's per-source KF blocks
+(`baselines.kalman`: (T, tau) and their 2x2 covariance, (2.7)-(2.8)), the number of arrivals each
+source has made (pulses taken plus arrivals missed) and its log-likelihood score.  Per pulse y:
+
+- Gating.  For every hypothesis and source, the source's next arrival nearest to y is its k-th
+  predicted arrival after its last pulse, k = max(1, round((y - tau) / T)); k - 1 arrivals were
+  missed (k = 1 is tried too, for a period still uncertain).  The k-step prediction of (2.8) (closed
+  form, cumulative jitter added k times) gives the innovation e and its variance S = H P H' + R
+  (2.15); the source is a candidate only when e^2 <= gate^2 S.  Only gated candidates are scored,
+  looked ahead and updated, so the expensive part of a pulse grows with the number of gated
+  candidates, not with the number of sources N (the gate test itself is a few flops per source).
+- Scores (proper log-likelihoods, densities per unit time).  "Source i after m = k - 1 misses":
+  log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), a
+  long run of misses costing at most `log p_gap`.  "Spurious": log rho, rho the intensity of DM89's
+  Bernoulli spurious impulses read as a Poisson stream: spurious_rate r (per source pulse) times
+  the sources' pulse rate sum_i 1/T_i.  Comparing the two is Theorem 1's MAP test (21)-(24) made
+  part of the hypothesis score instead of a hard decision.
+- Look-ahead ranking (MK94 III's idea: judge an assignment by the errors that follow it).  Pulses
+  are buffered (the policy's lag) so that, when a track takes a pulse, a small tree search over the
+  buffered pulses scores its next `look` arrivals (`_future`); children are ranked by score plus the
+  sum of their tracks' look-ahead scores.  A pulse given to the wrong track then loses at once,
+  instead of a period later when the beam has long forgotten the alternative.
+- Beam.  The best `beam` distinct children survive.  Two children whose sources all last fired on
+  the same pulses continue identically up to their period estimates, so only the better is kept
+  (the survivor rule of MK94's FDP (3.2)); they are found by a Zobrist hash of the per-source last
+  pulses.
+- Fixed lag and N-scan pruning.  Pulse k - nscan is labelled with the best hypothesis's label for it,
+  and every hypothesis disagreeing on that pulse is dropped (N-scan pruning), so later decisions are
+  consistent with earlier ones.
+- Track initiation.  In dense scenes the first arrivals of many sources fall within each other's
+  phase gates, and a tracker without look-ahead lets a neighbour capture a source's first pulse.  A
+  track's first pulse is judged by `look_start` (6) arrivals ahead, and until the longest prior period
+  has passed the beam is `start_beam` wide.
+- Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
+  restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
+  period), its period kept (or reset to the prior when it has left the prior by more than 2
+  deviations: a captured track), judged by `look_start` arrivals ahead.  A source that
+  starts late, stops, or was captured by a neighbour at the start is picked up again.
+- Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
+  with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
+  r = (spurious + 1) / (arrivals + 20).  Stated rates are used as given (floored so a log stays finite).
+
+The driver (`_run`: a batch of buffered pulses per call, decisions and rate estimates included) is
+compiled by numba (a core dependency: the blind deinterleavers' loops need it too); its interpreted
+form (`.py_func`) gives identical labels (tested), ~100x slower.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+from numba import njit
+
+from baselines.kalman import DLMModel, prior_block
+from deint_env.episode import Priors
+from deint_env.errors import NotApplicable
+
+
+_MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
+_Q_FLOOR = 1e-3  # miss probability floor: a merged or lost pulse stays explainable
+_R_FLOOR = 1e-3  # spurious-rate floor of an estimated (or stated nonzero) rate
+_R_ZERO = 1e-6  # the rate used when the priors state 0: a pulse no track can explain stays spurious
+_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
+_HASH_BITS = 12  # Zobrist table: per source, 2^12 entries indexed by the last pulse's index
+_LOG_2PI = math.log(2.0 * math.pi)
+# block fields of the state array (per hypothesis, per source)
+PERIOD, TAU, P_TT, P_TX, P_XX = range(5)
+
+
+class Beam(NamedTuple):
+    """A beam of up to `capacity` hypotheses (the first `size` are live).  blk: (B, N, 5) KF blocks;
+    arrivals: (B, N) arrivals made (taken + missed); last: (B, N) index of the source's last pulse
+    (-1 none); key: (B,) Zobrist hash of `last`; score: (B,) log-likelihood; h: (B, N) each track's
+    look-ahead score, ahead: (B,) their sum; label, missed: (B, L) ring buffers over the last
+    L = nscan + 1 pulses (label N = spurious; the misses before the pulse)."""
+
+    blk: np.ndarray
+    arrivals: np.ndarray
+    last: np.ndarray
+    key: np.ndarray
+    score: np.ndarray
+    h: np.ndarray
+    ahead: np.ndarray
+    label: np.ndarray
+    missed: np.ndarray
+
+    @classmethod
+    def empty(cls, capacity: int, n: int, ring: int) -> Beam:
+        return cls(np.zeros((capacity, n, 5)), np.zeros((capacity, n), np.int64), np.full((capacity, n), -1, np.int64),
+                   np.zeros(capacity, np.uint64), np.zeros(capacity), np.zeros((capacity, n)), np.zeros(capacity),
+                   np.zeros((capacity, ring), np.int64), np.zeros((capacity, ring), np.int64))
+
+
+class Scratch(NamedTuple):
+    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead),
+    the look-ahead cache per source (last pulse, steps, value; `used` entries) and the search stack."""
+
+    parent: np.ndarray
+    source: np.ndarray
+    steps: np.ndarray
+    score: np.ndarray
+    rank: np.ndarray
+    e: np.ndarray
+    s: np.ndarray
+    h: np.ndarray
+    cache_last: np.ndarray
+    cache_steps: np.ndarray
+    cache_val: np.ndarray
+    used: np.ndarray
+    stack: np.ndarray
+
+    @classmethod
+    def empty(cls, candidates: int, n: int, look: int) -> Scratch:
+        c = candidates
+        return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
+                   np.zeros(c), np.zeros(c), np.zeros((n, _CACHE), np.int64), np.zeros((n, _CACHE)),
+                   np.zeros((n, _CACHE)), np.zeros(n, np.int64), np.zeros((look * (_BRANCH + 1) + 2, 8)))
+
+
+class Settings(NamedTuple):
+    """What the compiled driver needs besides the beam (one argument for numba)."""
+
+    gate2: float
+    jitter_var: float
+    interval_var: float
+    log_gap: float
+    pulse_rate: float
+    known_q: float  # NaN: estimate
+    known_r: float  # NaN: estimate
+    start_until: float  # track initiation lasts while pulses are earlier than this
+    horizon_start: float  # look-ahead (time) buffered before a pulse is processed, during initiation
+    horizon: float  # and after it
+    beam: int
+    start_beam: int
+    nscan: int
+    look_start: int  # arrivals looked ahead when a track takes its first pulse
+    look: int  # and later
+    dead: int  # arrivals a track must have missed in a row before it may restart
+    reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
+
+
+_BRANCH = 3  # look-ahead: pulses tried per arrival (the nearest in the gate)
+_CACHE = 8  # look-ahead values cached per source and pulse
+
+
+@njit(cache=True, nogil=True)
+def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st):
+    """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
+    block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
+    (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
+    An arrival beyond the buffer ends the search (nothing known yet).  Depth-first with the explicit
+    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth)."""
+    if look <= 0:
+        return 0.0
+    newest = toa[n_seen - 1]
+    # branch and bound: no arrival scores more than a hit with S = R (its least variance), a miss, or
+    # the 0 of an arrival beyond the buffer
+    most = max(log_1mq - 0.5 * (_LOG_2PI + math.log(jitter_var)), log_q, 0.0)
+    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
+    st[0, 5], st[0, 6], st[0, 7] = 1.0, 0.0, 0.0
+    top = 1
+    best = -1e300
+    while top > 0:
+        top -= 1
+        t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
+        steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
+        p_tx = ptx + steps * ptt
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+        s = p_xx + jitter_var
+        pred = tau + steps * t
+        half = math.sqrt(gate2 * s)
+        if depth >= look or pred + half > newest:
+            if total > best:
+                best = total
+            continue
+        if total + (look - depth) * most <= best:
+            continue
+        lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
+        hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
+        if hi - lo > _BRANCH:  # keep the _BRANCH nearest
+            c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+            lo = max(lo, c - _BRANCH // 2)
+            hi = min(hi, lo + _BRANCH)
+        st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0  # the miss branch
+        top += 1
+        # hits, the farthest pushed first so the nearest is searched first (a good bound early)
+        c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+        left, right = c - 1, c
+        order = np.empty(hi - lo, np.int64)
+        for r in range(hi - lo):  # nearest first, merging outwards from the predicted arrival
+            if right < hi and (left < lo or toa[right] - pred < pred - toa[left]):
+                order[r] = right
+                right += 1
+            else:
+                order[r] = left
+                left -= 1
+        for r in range(hi - lo - 1, -1, -1):
+            j = order[r]
+            e = toa[j] - pred
+            g, r_s = e / s, jitter_var / s
+            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+            st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
+            st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+            st[top, 7] = depth + 1.0
+            top += 1
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _restart_period(t, ptt, prior_t, prior_tt):
+    """The period a restarting track starts from: its own estimate, unless that has left the prior by
+    more than 2 prior deviations (a track captured by a neighbour), then the prior's."""
+    if (t - prior_t) ** 2 > 4.0 * prior_tt:
+        return prior_t, prior_tt
+    return t, ptt
+
+
+@njit(cache=True, nogil=True)
+def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w):
+    """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
+    ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
+    track has no good continuation loses at once instead of a period later."""
+    y = toa[k]
+    n = c.blk.shape[1]
+    ring = c.label.shape[1]
+    gate2, jitter_var, interval_var = cfg.gate2, cfg.jitter_var, cfg.interval_var
+    w.used[:] = 0
+    nc = 0
+    for b in range(size):
+        for i in range(n):
+            t = c.blk[b, i, PERIOD]
+            tau = c.blk[b, i, TAU]
+            near = max(1.0, np.floor((y - tau) / t + 0.5))
+            ptt = c.blk[b, i, P_TT]
+            ptx = c.blk[b, i, P_TX]
+            # the nearest arrival, and (when that is not it) the very next one: with a period still
+            # uncertain, "no miss" must stay a candidate
+            for which in range(2):
+                if which == 1 and near == 1.0:
+                    break
+                steps = near if which == 0 else 1.0
+                s = c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
+                e = y - (tau + steps * t)
+                if e * e > gate2 * s:
+                    continue
+                m = steps - 1.0
+                miss = 0.0
+                if m > 0.0:
+                    miss = max(m * log_q, cfg.log_gap)
+                # the track's look-ahead after taking y (cached per source, last pulse and steps)
+                depth = look
+                if c.arrivals[b, i] == 0:
+                    depth = cfg.look_start
+                hv = 0.0
+                found = False
+                for q in range(w.used[i]):
+                    if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps:
+                        hv = w.cache_val[i, q]
+                        found = True
+                        break
+                if not found:
+                    p_tx = ptx + steps * ptt
+                    p_xx = s - jitter_var
+                    g, r_s = e / s, jitter_var / s
+                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s,
+                                 p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var, interval_var, log_q, log_1mq,
+                                 w.stack)
+                    if w.used[i] < _CACHE:
+                        q = w.used[i]
+                        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
+                        w.used[i] += 1
+                w.parent[nc] = b
+                w.source[nc] = i
+                w.steps[nc] = steps
+                w.score[nc] = c.score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                w.h[nc] = hv
+                w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
+                w.e[nc] = e
+                w.s[nc] = s
+                nc += 1
+            # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
+            # and is back with a phase uniform over its period, its period from the prior
+            # (counted with the longest plausible period: a period still unknown restarts nothing)
+            if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)):
+                hv = 0.0
+                found = False
+                for q in range(w.used[i]):
+                    if w.cache_last[i, q] == -2:
+                        hv = w.cache_val[i, q]
+                        found = True
+                        break
+                if not found:
+                    rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
+                    hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_start,
+                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack)
+                    if w.used[i] < _CACHE:
+                        q = w.used[i]
+                        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv
+                        w.used[i] += 1
+                w.parent[nc] = b
+                w.source[nc] = i
+                w.steps[nc] = -near  # negative: a restart after `near` arrivals
+                w.score[nc] = c.score[b] + log_1mq + cfg.log_gap - math.log(prior[i, PERIOD])
+                w.h[nc] = hv
+                w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
+                nc += 1
+        w.parent[nc] = b
+        w.source[nc] = -1
+        w.score[nc] = c.score[b] + log_rho
+        w.rank[nc] = w.score[nc] + c.ahead[b]
+        nc += 1
+    order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
+    slot = k % ring
+    mask = zob.shape[1] - 1
+    out = 0
+    for j in order:
+        if out == width:
+            break
+        b = w.parent[j]
+        i = w.source[j]
+        h = c.key[b]
+        if i >= 0:
+            h = h ^ zob[i, c.last[b, i] & mask] ^ zob[i, k & mask]
+        dup = False
+        for o in range(out):  # the same last pulse for every source: keep the better only
+            if x.key[o] == h:
+                same = True
+                for s_ in range(n):
+                    want = k if s_ == i else c.last[b, s_]
+                    if x.last[o, s_] != want:
+                        same = False
+                        break
+                if same:
+                    dup = True
+                    break
+        if dup:
+            continue
+        x.blk[out] = c.blk[b]
+        x.arrivals[out] = c.arrivals[b]
+        x.last[out] = c.last[b]
+        x.h[out] = c.h[b]
+        x.label[out] = c.label[b]
+        x.missed[out] = c.missed[b]
+        x.key[out] = h
+        x.score[out] = w.score[j]
+        x.ahead[out] = w.rank[j] - w.score[j]
+        if i >= 0 and w.steps[j] < 0:  # a restart at y
+            rt, rtt = _restart_period(c.blk[b, i, PERIOD], c.blk[b, i, P_TT], prior[i, PERIOD], prior[i, P_TT])
+            x.blk[out, i, PERIOD] = rt
+            x.blk[out, i, TAU] = y
+            x.blk[out, i, P_TT] = rtt
+            x.blk[out, i, P_TX] = 0.0
+            x.blk[out, i, P_XX] = jitter_var
+            x.arrivals[out, i] += int(-w.steps[j])
+            x.last[out, i] = k
+            x.h[out, i] = w.h[j]
+            x.label[out, slot] = i
+            x.missed[out, slot] = 0  # an on/off switch, not misses
+        elif i >= 0:
+            steps = w.steps[j]
+            t = c.blk[b, i, PERIOD]
+            ptt = c.blk[b, i, P_TT]
+            ptx = c.blk[b, i, P_TX]
+            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q
+            p_tx = ptx + steps * ptt
+            p_xx = w.s[j] - jitter_var
+            inv_s = 1.0 / w.s[j]
+            g = w.e[j] * inv_s
+            r_s = jitter_var * inv_s
+            # (2.15), written as in kalman.update (P R / S: no cancellation)
+            x.blk[out, i, PERIOD] = t + p_tx * g
+            x.blk[out, i, TAU] = c.blk[b, i, TAU] + steps * t + p_xx * g
+            x.blk[out, i, P_TT] = ptt - p_tx * p_tx * inv_s
+            x.blk[out, i, P_TX] = p_tx * r_s
+            x.blk[out, i, P_XX] = p_xx * r_s
+            x.arrivals[out, i] += int(steps)
+            x.last[out, i] = k
+            x.h[out, i] = w.h[j]
+            x.label[out, slot] = i
+            x.missed[out, slot] = int(steps) - 1
+        else:
+            x.label[out, slot] = n
+            x.missed[out, slot] = 0
+        out += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _prune(size, decided, label, c):
+    """N-scan pruning: keep (in order) the hypotheses that gave pulse `decided` the label `label`."""
+    slot = decided % c.label.shape[1]
+    out = 0
+    for b in range(size):
+        if c.label[b, slot] == label:
+            if out != b:
+                c.blk[out] = c.blk[b]
+                c.arrivals[out] = c.arrivals[b]
+                c.last[out] = c.last[b]
+                c.key[out] = c.key[b]
+                c.score[out] = c.score[b]
+                c.h[out] = c.h[b]
+                c.ahead[out] = c.ahead[b]
+                c.label[out] = c.label[b]
+                c.missed[out] = c.missed[b]
+            out += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _rates(cfg, counts):
+    """The per-pulse constants: stated rates, or the online estimates from the decided labels
+    (counts = hits, misses, spurious) with the weak Beta prior."""
+    arrivals = counts[0] + counts[1]
+    q = cfg.known_q
+    if math.isnan(q):
+        q = (counts[1] + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
+    r = cfg.known_r
+    if math.isnan(r):
+        r = (counts[2] + _PRIOR_MEAN * _PRIOR_WEIGHT) / (arrivals + _PRIOR_WEIGHT)
+    q = min(max(q, _Q_FLOOR), 0.9)
+    r = max(r, _R_FLOOR) if r > 0 else _R_ZERO
+    return math.log(q), math.log1p(-q), math.log(r * cfg.pulse_rate)
+
+
+@njit(cache=True, nogil=True)
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels):
+    """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
+    the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
+    the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
+    `swapped` when the beam now lives in `nxt`."""
+    n = cur.blk.shape[1]
+    ring = cfg.nscan + 1
+    newest = toa[n_seen - 1]
+    swapped = False
+    while k < n_seen:
+        y = toa[k]
+        starting = y <= cfg.start_until
+        ahead = cfg.horizon
+        width = cfg.beam
+        if starting:
+            ahead = cfg.horizon_start
+            width = cfg.start_beam
+        if not ended and n_seen - 1 - k < cfg.reserve and newest < y + ahead:
+            break
+        log_q, log_1mq, log_rho = _rates(cfg, counts)
+        if swapped:
+            a, b = nxt, cur
+        else:
+            a, b = cur, nxt
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
+        swapped = not swapped
+        decided = k - cfg.nscan
+        if decided >= 0:
+            slot = decided % ring
+            label = b.label[0, slot]
+            _count(counts, label, b.missed[0, slot], n)
+            labels[n_labels] = label
+            n_labels += 1
+            size = _prune(size, decided, label, b)
+        k += 1
+    if ended and k == n_seen:  # the best hypothesis labels the undecided tail
+        best = cur
+        if swapped:
+            best = nxt
+        for j in range(n_labels, n_seen):
+            slot = j % ring
+            _count(counts, best.label[0, slot], best.missed[0, slot], n)
+            labels[j] = best.label[0, slot]
+        n_labels = n_seen
+    return k, size, swapped, n_labels
+
+
+@njit(cache=True, nogil=True)
+def _count(counts, label, missed, n):
+    if label == n:
+        counts[2] += 1
+    else:
+        counts[0] += 1
+        counts[1] += missed
+
+
+class MHT:
+    """Policy `mht`.  Parameters: `beam` (hypotheses kept), `start_beam` (kept during track
+    initiation), `nscan` (pulses between a pulse and its decision: the N-scan depth), `look` (arrivals
+    looked ahead to start a track), `lag` (the env lag: pulses are buffered so the initiation
+    look-ahead sees `look` periods of the longest source, but never longer than lag - nscan pulses),
+    `gate` (in innovation standard deviations), `p_gap` (a source switching off and on again: the most
+    a run of misses costs), `rates` ("priors": the priors' missing/spurious rates, estimating those
+    they leave unknown; "estimate": estimate both online whatever the priors say), `batch` (pulses
+    buffered per call of the compiled driver; labels do not depend on it)."""
+
+    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
+                 lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
+                 dead: int = 3):
+        for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
+                            ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
+                            ("dead", dead, 1)):
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
+                raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
+        if nscan > lag:
+            raise ValueError(f"nscan={nscan} must be <= lag={lag}")
+        if not gate > 0:
+            raise ValueError(f"gate={gate!r} must be > 0")
+        if not 0 < p_gap < 1:
+            raise ValueError(f"p_gap={p_gap!r} must be in (0, 1)")
+        if rates not in ("priors", "estimate"):
+            raise ValueError(f"rates={rates!r} must be one of priors, estimate")
+        self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
+        self.look_start, self.look, self.dead = look_start, look, dead
+        self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
+
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        if priors.blind:
+            raise NotApplicable("mht needs priors (an anchored scenario)")
+        n = self.n = priors.n_labels
+        model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
+        # an unknown phase: the first arrival is somewhere in the first period
+        known = np.isfinite(priors.phase)
+        phase = np.where(known, priors.phase, 0.5 * priors.period)
+        phase_std = np.where(known, priors.phase_std, priors.period / math.sqrt(12.0))
+        b = prior_block(Priors(n_labels=n, period=priors.period, phase=phase, period_std=priors.period_std,
+                               phase_std=phase_std))
+        self.prior = np.ascontiguousarray(np.stack(list(b), axis=-1))
+        ring = self.nscan + 1
+        cap = self.start_beam
+        self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
+        self.cur.blk[0] = self.prior
+        self.size = 1
+        self.scratch = Scratch.empty(cap * (2 * n + 1), n, max(self.look, self.look_start))
+        rng = np.random.default_rng(0x5EED)
+        self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
+        # the key of "no pulse yet": every source's entry for last = -1 (index mask)
+        self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
+        t_max = float(np.max(priors.period))
+        stated = self.rates == "priors"
+        self.cfg = Settings(
+            gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
+            log_gap=math.log(self.p_gap), pulse_rate=float(np.sum(1.0 / priors.period)),
+            known_q=float(priors.missing_prob) if stated else math.nan,
+            known_r=float(priors.spurious_rate) if stated else math.nan,
+            start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
+            horizon_start=(self.look_start + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
+            horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
+            beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
+            look=self.look, dead=self.dead, reserve=self.lag - self.nscan)
+        self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
+        self.toa = np.zeros(1024)
+        self.labels = np.zeros(1024, np.int64)
+        self.n_seen = self.n_labels = 0
+        self.k = 0  # next pulse to process
+        self.called = 0  # pulses seen at the last driver call
+        self.ended = False
+        self.steps = 0
+
+    def act(self, obs: dict[str, Any]) -> int:
+        if int(obs["valid"]):
+            if self.n_seen == self.toa.size:
+                self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
+                self.labels = np.concatenate([self.labels, np.zeros(self.labels.size, np.int64)])
+            self.toa[self.n_seen] = float(obs["toa"][0])
+            self.n_seen += 1
+            # the driver is called every `batch` pulses (its call costs far more than a pulse) or when a
+            # decision is due
+            if self.n_seen - self.called >= self.batch or self.n_seen - 1 - self.k >= self.lag - self.nscan:
+                self._run()
+        elif not self.ended:
+            self.ended = True
+            if self.n_seen:
+                self._run()
+        self.steps += 1
+        t = self.steps - 1 - self.lag  # step t labels pulse t - lag
+        return int(self.labels[t]) if 0 <= t < self.n_labels else 0
+
+    def _run(self) -> None:
+        self.called = self.n_seen
+        self.k, self.size, swapped, self.n_labels = _run(
+            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
+            self.cfg, self.counts, self.labels, self.n_labels)
+        if swapped:
+            self.cur, self.nxt = self.nxt, self.cur
+
+    def estimates(self) -> dict[str, np.ndarray]:
+        blk, arr = self.cur.blk[0], self.cur.arrivals[0]
+        period = blk[:, PERIOD].copy()
+        return {"period": period, "phase": blk[:, TAU] - (np.maximum(arr, 1) - 1) * period}

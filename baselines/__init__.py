@@ -30,3 +30,9 @@ register_policy("ekf-bank", "baselines.ekf:EKFBank",
 register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
                 description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
                             "learning rule (12), in a bank as ekf-bank")
+register_policy("agile-kf", "baselines.agile:AgileKF",
+                description="agile PRIs: a bank of PRI state models per source (the one the priors name, else "
+                            "constant/trend/stagger/jump) on the Kalman core, MAP assignment, coasting")
+register_policy("renewal-ml", "baselines.agile:RenewalML",
+                description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
+                            "with missing and spurious pulses (anchored)")

@@ -6,6 +6,7 @@ change a suite, add a new version here (e.g. `core-v1`) and publish it with `--p
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import math
@@ -203,7 +204,7 @@ def robust_v0() -> Suite:
                  "cumulative jitter.", tuple(e))
 
 
-def agile_v0() -> Suite:
+def agile_v0(priors: PriorSpec = STD_PRIORS) -> Suite:
     steady = random_sources(2, 4.0)
     agile = Range(T_MIN, 2 * T_MIN, log=True)
     e = []
@@ -211,7 +212,7 @@ def agile_v0() -> Suite:
     def add(name, mod, desc, all_agile=False):
         srcs = (tuple(SourceSpec(period=agile, modulation=mod) for _ in range(3)) if all_agile
                 else (SourceSpec(period=agile, modulation=mod), *steady))
-        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=STD_PRIORS,
+        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=priors,
                                     description=desc), ["agile"], {"modulation": mod.kind, "all_agile": all_agile}))
 
     add("agile-stagger2", Modulation("stagger", pattern=(1.0, 1.5)), "one source with a 2-position stagger")
@@ -228,6 +229,14 @@ def agile_v0() -> Suite:
     add("agile-all-stagger", Modulation("stagger", pattern=(1.0, 1.3, 1.7)), "three 3-position staggered sources",
         all_agile=True)
     return Suite("agile-v0", 0, "Agile PRIs: stagger, sliding, wobulated, dwell-and-switch, drifting.", tuple(e))
+
+
+def agile_v1() -> Suite:
+    """agile-v0's scenarios (the same episodes, pulse for pulse) with priors that also name each source's
+    modulation (`PriorSpec.modulation`): what an emitter library tells a tracker."""
+    v0 = agile_v0(dataclasses.replace(STD_PRIORS, modulation=True))
+    return Suite("agile-v1", 1, "agile-v0 with priors naming each source's PRI modulation and its parameters.",
+                 v0.entries)
 
 
 def scale_v0() -> Suite:
@@ -253,7 +262,7 @@ def blind_v0() -> Suite:
     return Suite("blind-v0", 0, "Unknown number of sources and no priors: link-rewarded labels.", tuple(e))
 
 
-BUILDERS = {"paper-v0": paper_v0, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
+BUILDERS = {"paper-v0": paper_v0, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0, "agile-v1": agile_v1,
             "scale-v0": scale_v0, "blind-v0": blind_v0}
 
 

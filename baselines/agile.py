@@ -1,0 +1,207 @@
+"""Trackers for agile PRIs: `agile-kf` (a model-bank Kalman tracker with MAP assignment, DM89 style)
+and `renewal-ml` (Young et al.'s maximum-likelihood path search over renewal-process PRI models).
+
+Both run the same hypothesis search on the PRI models of `baselines.pri_models` (linear-Gaussian
+states on the shared Kalman core).  Each source carries a bank of models: the one its priors name
+(`Priors.modulation`), or `pri_models.default_bank()` when they name none; the bank's model
+probabilities are updated by each model's predictive likelihood of the pulses the source takes
+(multiple-model adaptive estimation), with a switching probability `switch` mixed in every pulse
+(IMM's Markov model switching, without its state mixing) so a source can move between models, as a
+dwell-and-switch emitter does.  A source's predictive density for the next pulse is the mixture of
+its models' Gaussian predictions.
+
+A hypothesis is an assignment of every pulse so far to a source or to "spurious"; its cost is the
+negative log-likelihood of the pulses under the renewal-process mixture (Young et al. 2019, section
+II: each source's arrivals are a renewal process observed with missing pulses, the spurious pulses a
+Poisson process; the likelihood of an assignment is the product over sources of their inter-arrival
+densities, times p_miss per emission that went unreceived and (1 - p_miss) per received one, times the
+Poisson density lambda per spurious pulse).  A source whose next emission is overdue at a pulse
+(`kalman.overdue`'s MK94 VI-C-3 test on its best model) coasts: its models predict through the missed
+emission, which costs -log p_miss.
+
+- `agile-kf`: beam 1, lag 0: each pulse goes to the source (or spurious) of least cost, i.e. the MAP
+  decision under the model-aware predictions, then that source's KF update: DM89's detect-then-filter.
+- `renewal-ml`: the maximum-likelihood path search of Young et al. (their section III) as a beam
+  search: the `beam` least-cost hypotheses survive each pulse, and pulse k is labelled from the best
+  hypothesis when pulse k + `lag` has arrived.  Anchored mode only (the priors name the sources).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from baselines import pri_models
+from baselines.kalman import LinearBlock, linear_innovation, linear_predict, linear_update
+from baselines.pri_models import TAU, BankArrays
+from deint_env.episode import Priors
+from deint_env.errors import NotApplicable
+
+_MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
+_MISS_FLOOR = 1e-3  # p_miss used for coasting when the priors say nothing is missed (a track can slip)
+_MAX_COAST = 64
+_LOG_2PI = math.log(2 * math.pi)
+
+
+class PathSearch:
+    """The hypothesis search shared by `agile-kf` and `renewal-ml` (see the module doc).
+
+    beam: hypotheses kept; lag: pulses of look-ahead before a label is final; gate: the overdue test's
+    width in predicted standard deviations; switch: the per-pulse model switching probability; bank:
+    "priors" (the named model, the default bank where none is named) or "default" (always the bank)."""
+
+    def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
+        if not isinstance(beam, int) or isinstance(beam, bool) or not 1 <= beam <= 4096:
+            raise ValueError(f"beam={beam!r} must be an integer in [1, 4096]")
+        if not isinstance(lag, int) or isinstance(lag, bool) or not 0 <= lag <= 256:
+            raise ValueError(f"lag={lag!r} must be an integer in [0, 256]")
+        if not gate > 0:
+            raise ValueError(f"gate={gate!r} must be > 0")
+        if not 0 <= switch < 1:
+            raise ValueError(f"switch={switch!r} must be in [0, 1)")
+        if bank not in ("priors", "default"):
+            raise ValueError(f"bank={bank!r} must be 'priors' or 'default'")
+        self.beam, self.lag, self.gate, self.switch, self.bank_mode = beam, lag, float(gate), float(switch), bank
+
+    # ---- setup ---------------------------------------------------------------------------------
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        if priors.blind:
+            raise NotApplicable("agile-kf and renewal-ml (anchored) need priors; blind scenarios have none")
+        n = self.n = priors.n_labels
+        period = np.asarray(priors.period, dtype=np.float64)
+        named = priors.modulation if self.bank_mode == "priors" else None
+        banks = [(pri_models.from_modulation(named[i], float(period[i])),) if named is not None
+                 and named[i] is not None else pri_models.default_bank() for i in range(n)]
+        phase = np.where(np.isfinite(priors.phase), priors.phase, 0.0)
+        phase_std = np.where(np.isfinite(priors.phase_std), priors.phase_std, 1e3 * period)
+        self.arrays: BankArrays = pri_models.build_bank(banks, period, priors.period_std, phase, phase_std,
+                                                        priors.pri_jitter_std ** 2)
+        self.r = max(priors.jitter_std, _MIN_JITTER_REL * float(period.min())) ** 2
+        m = self.arrays.valid.shape[1]
+        self.log_switch = np.where(self.arrays.valid, 0.0, -np.inf)  # log of the uniform switch target, unnormalised
+        self.log_switch -= np.log(self.arrays.valid.sum(axis=1, keepdims=True))
+        p_miss = priors.missing_prob
+        self.miss_cost = -math.log(max(p_miss, _MISS_FLOOR))
+        self.hit_cost = -math.log1p(-p_miss)
+        rate = float(np.sum(1.0 / period))
+        self.spurious_cost = -math.log(priors.spurious_rate * rate) if priors.spurious_rate > 0 else None
+        # hypotheses (H of them): states (H, N, M, D+1[, D+1]), emission counts, model log-weights, costs
+        self.state = LinearBlock(self.arrays.x0[None].copy(), self.arrays.p0[None].copy())
+        self.count = np.zeros((1, n), dtype=np.int64)  # emissions passed (received or coasted)
+        self.logw = self.log_switch[None].copy()
+        self.cost = np.zeros(1)
+        self.first = np.full((1, n), np.nan)  # first pulse taken (the phase estimate)
+        self.history = np.zeros((1, self.lag + 1), dtype=np.int64)  # labels of pulses k - lag .. k
+        self.k = -1  # last pulse seen
+        self.steps = 0
+        self._m = m
+
+    # ---- the filter steps ---------------------------------------------------------------------------
+    def _advance(self, mask: np.ndarray) -> None:
+        """Every model of the (hypothesis, source) pairs in `mask` (H, N) predicts its next emission."""
+        if not mask.any():
+            return
+        a = self.arrays
+        pred = linear_predict(self.state, a.transition(self.count), a.q)
+        keep = mask[:, :, None]
+        self.state = LinearBlock(np.where(keep[..., None], pred.x, self.state.x),
+                                 np.where(keep[..., None, None], pred.p, self.state.p))
+        self.count = self.count + mask
+
+    def _best_model(self) -> np.ndarray:
+        return np.argmax(self.logw, axis=2)  # (H, N)
+
+    def _coast(self, y: float) -> None:
+        """MK94 VI-C-3 (`kalman.overdue` on each source's most probable model): sources whose next
+        emission is overdue at y predict through it without a measurement, at -log p_miss each."""
+        for _ in range(_MAX_COAST):
+            best = self._best_model()[..., None]
+            x = np.take_along_axis(self.state.x, best[..., None], axis=2)[:, :, 0]  # (H, N, D+1)
+            var = np.take_along_axis(self.state.p[..., TAU, TAU], best, axis=2)[:, :, 0]
+            phi = np.take_along_axis(self.arrays.regressor(self.count), best[..., None], axis=2)[:, :, 0]
+            pri = np.einsum("hnd,hnd->hn", phi, x[..., 1:])
+            late = y - x[..., TAU] > self.gate * np.sqrt(var + self.r) + 0.5 * pri
+            if not late.any():
+                return
+            self.cost = self.cost + self.miss_cost * late.sum(axis=1)
+            self._advance(late)
+
+    def _step(self, y: float) -> None:
+        self._coast(y)
+        e, s = linear_innovation(self.state, y, TAU, self.r)  # (H, N, M)
+        ll = -0.5 * (_LOG_2PI + np.log(s) + e * e / s)  # each model's predictive log-density
+        joint = self.logw + np.where(self.arrays.valid, ll, -np.inf)
+        top = joint.max(axis=2, keepdims=True)
+        src_ll = (top + np.log(np.exp(joint - top).sum(axis=2, keepdims=True)))[..., 0]  # (H, N)
+        ext = self.cost[:, None] - src_ll + self.hit_cost
+        if self.spurious_cost is not None:
+            ext = np.concatenate([ext, self.cost[:, None] + self.spurious_cost], axis=1)
+        flat = ext.ravel()
+        keep = min(self.beam, flat.size)
+        pick = np.argpartition(flat, keep - 1)[:keep] if keep < flat.size else np.arange(flat.size)
+        pick = pick[np.argsort(flat[pick], kind="stable")]
+        h, j = np.divmod(pick, ext.shape[1])
+        self.cost = flat[pick]
+        self.state = self.state.take(h)
+        self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h].copy()
+        self.history = np.concatenate([self.history[h, 1:], j[:, None]], axis=1)
+        took = j < self.n
+        if took.any():
+            rows, src = np.nonzero(took)[0], j[took]
+            sub = LinearBlock(self.state.x[rows, src], self.state.p[rows, src])
+            upd = linear_update(sub, e[h[rows], src], s[h[rows], src], TAU, self.r)
+            x, p = self.state.x.copy(), self.state.p.copy()
+            x[rows, src], p[rows, src] = upd.x, upd.p
+            self.state = LinearBlock(x, p)
+            # model probabilities: Bayes on the pulse, then the switching mix (IMM's Markov step)
+            w = self.logw[rows, src] + ll[h[rows], src]
+            w = np.where(self.arrays.valid[src], w, -np.inf)
+            w -= w.max(axis=1, keepdims=True)
+            w -= np.log(np.exp(w).sum(axis=1, keepdims=True))
+            if self.switch > 0:
+                w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + self.log_switch[src])
+            self.logw = self.logw.copy()
+            self.logw[rows, src] = w
+            self.first[rows, src] = np.where(np.isnan(self.first[rows, src]), y, self.first[rows, src])
+            mask = np.zeros(took.shape + (self.n,), dtype=bool)
+            mask[rows, src] = True
+            self._advance(mask)
+
+    # ---- the policy protocol -----------------------------------------------------------------------
+    def act(self, obs: dict[str, Any]) -> int:
+        if int(obs["valid"]):
+            self.k += 1
+            self._step(float(obs["toa"][0]))
+        want = self.steps - self.lag  # step t labels pulse t - lag
+        self.steps += 1
+        if want < 0:
+            return 0
+        col = want - (self.k - self.lag)  # the history holds pulses k - lag .. k
+        return int(self.history[0, col])  # hypotheses are sorted: row 0 is the best
+
+    def estimates(self) -> dict[str, np.ndarray]:
+        """The best hypothesis's sources: each one's mean PRI under its most probable model, and the
+        first pulse it took (its phase; the prior's where it took none)."""
+        best = self._best_model()[0]
+        period = np.empty(self.n)
+        for i in range(self.n):
+            model = self.arrays.models[i][best[i]]
+            period[i] = model.mean_pri(self.state.x[0, i, best[i], 1:])
+        phase = np.where(np.isnan(self.first[0]), self.arrays.x0[:, 0, TAU], self.first[0])
+        return {"period": period, "phase": phase}
+
+
+class AgileKF(PathSearch):
+    """`agile-kf`: the model-bank tracker with MAP decisions (beam 1, lag 0)."""
+
+    def __init__(self, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
+        super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank)
+
+
+class RenewalML(PathSearch):
+    """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`."""
+
+    def __init__(self, beam: int = 16, lag: int = 8, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
+        super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank)

@@ -161,6 +161,7 @@ class PathSearch:
             w -= w.max(axis=1, keepdims=True)
             w -= np.log(np.exp(w).sum(axis=1, keepdims=True))
             if self.switch > 0:
+                self._mix(rows, src, w)
                 w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + self.log_switch[src])
             self.logw = self.logw.copy()
             self.logw[rows, src] = w
@@ -168,6 +169,22 @@ class PathSearch:
             mask = np.zeros(took.shape + (self.n,), dtype=bool)
             mask[rows, src] = True
             self._advance(mask)
+
+    def _mix(self, rows: np.ndarray, src: np.ndarray, logw: np.ndarray) -> None:
+        """IMM's interaction step (Blom & Bar-Shalom) within each model family: model j restarts from
+        the mix of the family's states weighted by p_ij mu_i, with p = (1 - switch) I + switch U."""
+        mu = np.exp(logw)  # (R, M)
+        valid = self.arrays.valid[src]
+        trans = (1 - self.switch) * np.eye(self._m) + self.switch * valid[:, None, :] / valid.sum(axis=1)[:, None, None]
+        wij = np.where(self.arrays.same_family[src], trans * mu[:, :, None], 0.0)  # (R, i, j)
+        if not (wij.sum(axis=1) > 0).all():
+            wij = wij + np.eye(self._m) * 1e-300
+        wij /= wij.sum(axis=1, keepdims=True)
+        x, p = self.state.x[rows, src], self.state.p[rows, src]  # (R, M, D+1[, D+1])
+        x0 = np.einsum("rij,rid->rjd", wij, x)
+        dx = x[:, :, None, :] - x0[:, None, :, :]  # (R, i, j, D+1)
+        p0 = np.einsum("rij,rijde->rjde", wij, p[:, :, None] + dx[..., :, None] * dx[..., None, :])
+        self.state.x[rows, src], self.state.p[rows, src] = x0, p0
 
     # ---- the policy protocol -----------------------------------------------------------------------
     def act(self, obs: dict[str, Any]) -> int:

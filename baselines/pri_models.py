@@ -54,6 +54,7 @@ class PRIModel:
     noise: np.ndarray  # (d, d), relative to T^2
     unit: np.ndarray  # (d,)
     spread: np.ndarray  # (d,)
+    family: str = ""  # models of one non-empty family share theta's meaning: IMM mixes their states
 
     @property
     def dim(self) -> int:
@@ -64,23 +65,27 @@ class PRIModel:
         return theta[..., :self.dim] @ self.table.mean(axis=0)
 
 
-def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None) -> PRIModel:
+def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None, family: str = "") -> PRIModel:
     table = np.atleast_2d(np.asarray(table, dtype=np.float64))
     d = table.shape[1]
     return PRIModel(kind, table,
                     np.eye(d) if transition is None else np.asarray(transition, dtype=np.float64),
                     np.zeros((d, d)) if noise is None else np.asarray(noise, dtype=np.float64),
                     np.ones(d) if unit is None else np.asarray(unit, dtype=np.float64),
-                    np.zeros(d) if spread is None else np.asarray(spread, dtype=np.float64))
+                    np.zeros(d) if spread is None else np.asarray(spread, dtype=np.float64), family)
+
+
+# theta_0 is the PRI in force (and theta_1, if any, its rate): these models' states mix (IMM)
+PRI_FAMILY = "pri"
 
 
 def constant() -> PRIModel:
-    return _model("constant", [[1.0]])
+    return _model("constant", [[1.0]], family=PRI_FAMILY)
 
 
 def drifting(alpha: float, drift_std_rel: float) -> PRIModel:
     """MK94 II-C-2: T' = alpha T + v, var v = (drift_std_rel T)^2."""
-    return _model("drifting", [[1.0]], [[alpha]], [[drift_std_rel ** 2]])
+    return _model("drifting", [[1.0]], [[alpha]], [[drift_std_rel ** 2]], family=PRI_FAMILY)
 
 
 def stagger(m: int, pattern: tuple[float, ...] | None = None, spread: float = 0.3) -> PRIModel:
@@ -110,11 +115,11 @@ def sinusoidal(cycle: int, depth: float) -> PRIModel:
 
 def trend(rate_std: float = 0.02, rate_noise: float = 0.003) -> PRIModel:
     return _model("trend", [[1.0, 0.0]], [[1.0, 1.0], [0.0, 1.0]], [[0.0, 0.0], [0.0, rate_noise ** 2]],
-                  unit=[1.0, 0.0], spread=[0.0, rate_std])
+                  unit=[1.0, 0.0], spread=[0.0, rate_std], family=PRI_FAMILY)
 
 
-def jump(step_std: float = 0.05) -> PRIModel:
-    return _model("jump", [[1.0]], noise=[[step_std ** 2]])
+def jump(step_std: float = 0.3) -> PRIModel:
+    return _model("jump", [[1.0]], noise=[[step_std ** 2]], family=PRI_FAMILY)
 
 
 def from_modulation(mod: Modulation, period: float) -> PRIModel:
@@ -158,6 +163,7 @@ class BankArrays:
     x0: np.ndarray
     p0: np.ndarray
     valid: np.ndarray
+    same_family: np.ndarray  # (N, M, M): slots i, j hold models of one family (IMM mixes their states)
     models: tuple[tuple[PRIModel, ...], ...]
 
     def regressor(self, n: np.ndarray) -> np.ndarray:
@@ -201,4 +207,9 @@ def build_bank(banks: list[tuple[PRIModel, ...]], period: np.ndarray, period_std
             p0[i, j, 1:k + 1, 1:k + 1] = t_std ** 2 * np.outer(model.unit, model.unit) + np.diag((t * model.spread) ** 2)
             p0[i, j, TAU, TAU] = phase_std[i] ** 2
             valid[i, j] = True
-    return BankArrays(table, cycle, f, q, x0, p0, valid, tuple(banks))
+    same = np.eye(m, dtype=bool)[None].repeat(n, axis=0)
+    for i, bank in enumerate(banks):
+        for j, a in enumerate(bank):
+            for k, b in enumerate(bank):
+                same[i, j, k] |= bool(a.family) and a.family == b.family
+    return BankArrays(table, cycle, f, q, x0, p0, valid, same, tuple(banks))

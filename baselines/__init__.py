@@ -32,7 +32,7 @@ register_policy("ekf-coupled", "baselines.coupled:EKFCoupled",
                             "learning rule (12), in a bank as ekf-bank")
 register_policy("agile-kf", "baselines.agile:AgileKF",
                 description="agile PRIs: a bank of PRI state models per source (the one the priors name, else "
-                            "constant/trend/stagger/jump) on the Kalman core, MAP assignment, coasting")
+                            "constant/trend/stagger/switch) on the Kalman core, MAP assignment, coasting")
 register_policy("renewal-ml", "baselines.agile:RenewalML",
                 description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
                             "with missing and spurious pulses (anchored)")

@@ -104,7 +104,7 @@ class PathSearch:
         if not mask.any():
             return
         a = self.arrays
-        pred = linear_predict(self.state, a.transition(self.count), a.q)
+        pred = linear_predict(self.state, a.transition(self.count), a.q, a.c)
         keep = mask[:, :, None]
         self.state = LinearBlock(np.where(keep[..., None], pred.x, self.state.x),
                                  np.where(keep[..., None, None], pred.p, self.state.p))

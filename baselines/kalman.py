@@ -181,9 +181,11 @@ class LinearBlock(NamedTuple):
         return LinearBlock(self.x[index], self.p[index])
 
 
-def linear_predict(b: LinearBlock, f: np.ndarray, q: np.ndarray) -> LinearBlock:
-    """x' = F x, P' = F P F' + Q, with F and Q broadcast over the batch."""
+def linear_predict(b: LinearBlock, f: np.ndarray, q: np.ndarray, c: np.ndarray | None = None) -> LinearBlock:
+    """x' = F x + c, P' = F P F' + Q, with F, Q and the known input c broadcast over the batch."""
     x = np.einsum("...ij,...j->...i", f, b.x)
+    if c is not None:
+        x = x + c
     p = np.einsum("...ij,...jk,...lk->...il", f, b.p, f) + q
     return LinearBlock(x, p)
 

@@ -19,8 +19,9 @@ tau.  The kinds (`deint_env.scenario.Modulation` defines the simulated ones):
   known period L and unknown phase psi is linear in its quadratures (a, b) = T depth (cos psi, sin psi).
 - ``trend``: theta = (T, dT), A = [[1, 1], [0, 1]], phi = (1, 0): a PRI with a rate state driven by
   noise (a local linear trend), for a sliding or wobulated PRI whose cycle is not known.
-- ``jump``: theta = T with a large random walk: a PRI that may switch at any pulse (dwell and
-  switch with unknown dwells), the broad member of a model bank.
+- ``switch``: theta = T drawn afresh around the prior period at each pulse (A = 0 and a known input):
+  with ``constant`` in an IMM, a PRI that holds and switches at unknown pulses (dwell and switch with
+  unknown dwells, a saw-tooth's reset), the broad member of a model bank.
 
 A `PRIModel` is the model of one source up to its scale: `build(period, period_std, ...)` gives its
 arrays for a source of prior mean period T (theta's prior mean T * `unit`, covariance from the
@@ -37,7 +38,7 @@ import numpy as np
 from deint_env.errors import DeintError
 from deint_env.scenario import Modulation
 
-KINDS = ("constant", "drifting", "stagger", "dwell_switch", "sliding", "sinusoidal", "trend", "jump")
+KINDS = ("constant", "drifting", "stagger", "dwell_switch", "sliding", "sinusoidal", "trend", "switch")
 TAU = 0  # the arrival's index in the state; theta follows
 
 
@@ -55,6 +56,8 @@ class PRIModel:
     unit: np.ndarray  # (d,)
     spread: np.ndarray  # (d,)
     family: str = ""  # models of one non-empty family share theta's meaning: IMM mixes their states
+    offset: np.ndarray | None = None  # (d,) b: theta' = A theta + b T + v (a PRI drawn afresh around T)
+    anchored: bool = False  # the unknown shape keeps the cycle's mean PRI at T (spread only across levels)
 
     @property
     def dim(self) -> int:
@@ -65,14 +68,16 @@ class PRIModel:
         return theta[..., :self.dim] @ self.table.mean(axis=0)
 
 
-def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None, family: str = "") -> PRIModel:
+def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None, family: str = "", offset=None,
+           anchored: bool = False) -> PRIModel:
     table = np.atleast_2d(np.asarray(table, dtype=np.float64))
     d = table.shape[1]
     return PRIModel(kind, table,
                     np.eye(d) if transition is None else np.asarray(transition, dtype=np.float64),
                     np.zeros((d, d)) if noise is None else np.asarray(noise, dtype=np.float64),
                     np.ones(d) if unit is None else np.asarray(unit, dtype=np.float64),
-                    np.zeros(d) if spread is None else np.asarray(spread, dtype=np.float64), family)
+                    np.zeros(d) if spread is None else np.asarray(spread, dtype=np.float64), family,
+                    None if offset is None else np.asarray(offset, dtype=np.float64), anchored)
 
 
 # theta_0 is the PRI in force (and theta_1, if any, its rate): these models' states mix (IMM)
@@ -90,9 +95,11 @@ def drifting(alpha: float, drift_std_rel: float) -> PRIModel:
 
 def stagger(m: int, pattern: tuple[float, ...] | None = None, spread: float = 0.3) -> PRIModel:
     """m sub-PRIs; a known pattern fixes their ratios (only the scale is uncertain), an unknown one
-    starts every level at T with relative std `spread`."""
+    starts every level at T with relative std `spread` about their mean, which stays at T (a stagger's
+    mean PRI is the source's period)."""
     unit = np.ones(m) if pattern is None else np.asarray(pattern) / np.mean(pattern)
-    return _model("stagger", np.eye(m), unit=unit, spread=np.full(m, 0.0 if pattern is not None else spread))
+    return _model("stagger", np.eye(m), unit=unit, spread=np.full(m, 0.0 if pattern is not None else spread),
+                  anchored=pattern is None)
 
 
 def dwell_switch(pattern: tuple[float, ...], cycle: int) -> PRIModel:
@@ -118,8 +125,10 @@ def trend(rate_std: float = 0.02, rate_noise: float = 0.003) -> PRIModel:
                   unit=[1.0, 0.0], spread=[0.0, rate_std], family=PRI_FAMILY)
 
 
-def jump(step_std: float = 0.3) -> PRIModel:
-    return _model("jump", [[1.0]], noise=[[step_std ** 2]], family=PRI_FAMILY)
+def switch(spread: float = 0.25) -> PRIModel:
+    """A PRI drawn afresh around the period at every pulse, T' = T_prior + v with std `spread` T: in an
+    IMM with `constant` (stay), the switch of a dwell-and-switch or a saw-tooth's reset."""
+    return _model("switch", [[1.0]], [[0.0]], [[spread ** 2]], family=PRI_FAMILY, offset=[1.0])
 
 
 def from_modulation(mod: Modulation, period: float) -> PRIModel:
@@ -143,8 +152,8 @@ def from_modulation(mod: Modulation, period: float) -> PRIModel:
 
 def default_bank() -> tuple[PRIModel, ...]:
     """The bank run for a source whose modulation the priors do not name: constant, a rate state, 2-
-    and 3-position stagger with unknown levels, and a switching (jump) PRI."""
-    return constant(), trend(), stagger(2), stagger(3), jump()
+    and 3-position stagger with unknown levels, and a switching PRI."""
+    return constant(), trend(), stagger(2), stagger(3), switch()
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,6 +169,7 @@ class BankArrays:
     length: np.ndarray
     f: np.ndarray
     q: np.ndarray
+    c: np.ndarray  # (N, M, D+1): the known input b T of models with an offset
     x0: np.ndarray
     p0: np.ndarray
     valid: np.ndarray
@@ -189,6 +199,7 @@ def build_bank(banks: list[tuple[PRIModel, ...]], period: np.ndarray, period_std
     cycle = np.ones((n, m), dtype=np.int64)
     f = np.broadcast_to(np.eye(d + 1), (n, m, d + 1, d + 1)).copy()
     q = np.zeros((n, m, d + 1, d + 1))
+    c = np.zeros((n, m, d + 1))
     x0 = np.zeros((n, m, d + 1))
     p0 = np.zeros((n, m, d + 1, d + 1))
     valid = np.zeros((n, m), dtype=bool)
@@ -201,10 +212,16 @@ def build_bank(banks: list[tuple[PRIModel, ...]], period: np.ndarray, period_std
             f[i, j, 1:k + 1, 1:k + 1] = model.transition
             q[i, j, 1:k + 1, 1:k + 1] = model.noise * t * t
             q[i, j, TAU, TAU] = interval_var
+            if model.offset is not None:
+                c[i, j, 1:k + 1] = model.offset * t
             x0[i, j, TAU] = phase[i]
             x0[i, j, 1:k + 1] = t * model.unit
             # the scale's uncertainty moves every level together; the shape's spread is independent
-            p0[i, j, 1:k + 1, 1:k + 1] = t_std ** 2 * np.outer(model.unit, model.unit) + np.diag((t * model.spread) ** 2)
+            shape = np.diag((t * model.spread) ** 2)
+            if model.anchored:  # spread only across the levels: their mean is the period
+                centre = np.eye(k) - 1.0 / k
+                shape = centre @ shape @ centre
+            p0[i, j, 1:k + 1, 1:k + 1] = t_std ** 2 * np.outer(model.unit, model.unit) + shape
             p0[i, j, TAU, TAU] = phase_std[i] ** 2
             valid[i, j] = True
     same = np.eye(m, dtype=bool)[None].repeat(n, axis=0)
@@ -212,4 +229,4 @@ def build_bank(banks: list[tuple[PRIModel, ...]], period: np.ndarray, period_std
         for j, a in enumerate(bank):
             for k, b in enumerate(bank):
                 same[i, j, k] |= bool(a.family) and a.family == b.family
-    return BankArrays(table, cycle, f, q, x0, p0, valid, same, tuple(banks))
+    return BankArrays(table, cycle, f, q, c, x0, p0, valid, same, tuple(banks))

@@ -220,5 +220,5 @@ class AgileKF(PathSearch):
 class RenewalML(PathSearch):
     """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`."""
 
-    def __init__(self, beam: int = 16, lag: int = 8, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
+    def __init__(self, beam: int = 64, lag: int = 16, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
         super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank)

@@ -97,6 +97,7 @@ class PathSearch:
         self.k = -1  # last pulse seen
         self.steps = 0
         self._m = m
+        self._mixing = bool((self.arrays.same_family & ~np.eye(m, dtype=bool)).any())  # any IMM family
 
     # ---- the filter steps ---------------------------------------------------------------------------
     def _advance(self, mask: np.ndarray) -> None:
@@ -104,10 +105,12 @@ class PathSearch:
         if not mask.any():
             return
         a = self.arrays
-        pred = linear_predict(self.state, a.transition(self.count), a.q, a.c)
-        keep = mask[:, :, None]
-        self.state = LinearBlock(np.where(keep[..., None], pred.x, self.state.x),
-                                 np.where(keep[..., None, None], pred.p, self.state.p))
+        h, i = np.nonzero(mask)
+        f = a.transition(self.count)[h, i]  # only the pairs that advance
+        pred = linear_predict(LinearBlock(self.state.x[h, i], self.state.p[h, i]), f, a.q[i], a.c[i])
+        x, p = self.state.x.copy(), self.state.p.copy()
+        x[h, i], p[h, i] = pred.x, pred.p
+        self.state = LinearBlock(x, p)
         self.count = self.count + mask
 
     def _best_model(self) -> np.ndarray:
@@ -160,7 +163,7 @@ class PathSearch:
             w = np.where(self.arrays.valid[src], w, -np.inf)
             w -= w.max(axis=1, keepdims=True)
             w -= np.log(np.exp(w).sum(axis=1, keepdims=True))
-            if self.switch > 0:
+            if self.switch > 0 and self._mixing:
                 self._mix(rows, src, w)
                 w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + self.log_switch[src])
             self.logw = self.logw.copy()
@@ -181,10 +184,13 @@ class PathSearch:
             wij = wij + np.eye(self._m) * 1e-300
         wij /= wij.sum(axis=1, keepdims=True)
         x, p = self.state.x[rows, src], self.state.p[rows, src]  # (R, M, D+1[, D+1])
-        x0 = np.einsum("rij,rid->rjd", wij, x)
-        dx = x[:, :, None, :] - x0[:, None, :, :]  # (R, i, j, D+1)
-        p0 = np.einsum("rij,rijde->rjde", wij, p[:, :, None] + dx[..., :, None] * dx[..., None, :])
-        self.state.x[rows, src], self.state.p[rows, src] = x0, p0
+        r, m, d = x.shape
+        wt = np.swapaxes(wij, 1, 2)  # (R, j, i)
+        dx = x - x[:, :1]  # about slot 0 (the spread of the moments, not the size of tau)
+        x0 = wt @ dx  # mixed means, about slot 0
+        spread = p + dx[..., :, None] * dx[..., None, :]  # P_i + dx_i dx_i'
+        p0 = (wt @ spread.reshape(r, m, d * d)).reshape(r, m, d, d) - x0[..., :, None] * x0[..., None, :]
+        self.state.x[rows, src], self.state.p[rows, src] = x0 + x[:, :1], p0
 
     # ---- the policy protocol -----------------------------------------------------------------------
     def act(self, obs: dict[str, Any]) -> int:

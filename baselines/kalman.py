@@ -183,11 +183,10 @@ class LinearBlock(NamedTuple):
 
 def linear_predict(b: LinearBlock, f: np.ndarray, q: np.ndarray, c: np.ndarray | None = None) -> LinearBlock:
     """x' = F x + c, P' = F P F' + Q, with F, Q and the known input c broadcast over the batch."""
-    x = np.einsum("...ij,...j->...i", f, b.x)
+    x = (f @ b.x[..., None])[..., 0]
     if c is not None:
         x = x + c
-    p = np.einsum("...ij,...jk,...lk->...il", f, b.p, f) + q
-    return LinearBlock(x, p)
+    return LinearBlock(x, f @ b.p @ np.swapaxes(f, -1, -2) + q)
 
 
 def linear_innovation(b: LinearBlock, y: np.ndarray | float, index: int, r: float) -> tuple[np.ndarray, np.ndarray]:
@@ -200,7 +199,6 @@ def linear_update(b: LinearBlock, e: np.ndarray, s: np.ndarray, index: int, r: f
     symmetric and positive when a prior variance is huge (an unknown phase)."""
     k = b.p[..., :, index] / s[..., None]
     x = b.x + k * e[..., None]
-    a = -k[..., :, None] * np.eye(b.x.shape[-1])[index]  # -K H
-    a = a + np.eye(b.x.shape[-1])
-    p = np.einsum("...ij,...jk,...lk->...il", a, b.p, a) + r * k[..., :, None] * k[..., None, :]
+    a = np.eye(b.x.shape[-1]) - k[..., :, None] * np.eye(b.x.shape[-1])[index]  # I - K H
+    p = a @ b.p @ np.swapaxes(a, -1, -2) + r * k[..., :, None] * k[..., None, :]
     return LinearBlock(x, p)

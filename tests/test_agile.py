@@ -228,3 +228,13 @@ def test_bad_modulation_in_a_priors_file_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert code == 2 and len(err) == 1 and "modulation.pattern" in err[0]
     assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.slow
+def test_renewal_ml_on_agile_v1_first_test_seeds():
+    """The acceptance target on the suite's own episodes: normalised score >= 0.9 on the first test
+    seed of every agile-v1 scenario (about a minute)."""
+    from deint_env.runner import make_jobs, run_job
+
+    scores = {job.scenario["name"]: run_job(job)["score"] for job in make_jobs(["renewal-ml"], "agile-v1", max_seeds=1)}
+    assert len(scores) == 9 and min(scores.values()) >= 0.9, scores

@@ -11,18 +11,20 @@ dwell-and-switch emitter does.  A source's predictive density for the next pulse
 its models' Gaussian predictions.
 
 A hypothesis is an assignment of every pulse so far to a source or to "spurious"; its cost is the
-negative log-likelihood of the pulses under the renewal-process mixture (Young et al. 2019, section
-II: each source's arrivals are a renewal process observed with missing pulses, the spurious pulses a
-Poisson process; the likelihood of an assignment is the product over sources of their inter-arrival
-densities, times p_miss per emission that went unreceived and (1 - p_miss) per received one, times the
-Poisson density lambda per spurious pulse).  A source whose next emission is overdue at a pulse
+negative log-likelihood of the pulses under a mixture of renewal processes, as Young et al. set the
+problem (each source's arrivals a renewal process observed with missing pulses, the spurious pulses a
+Poisson process): the product over sources of their inter-arrival densities, times p_miss per
+emission that went unreceived and (1 - p_miss) per received one, times the Poisson density lambda per
+spurious pulse.  The paper's full text is not among the project's papers: this follows its model and
+its maximum-likelihood labelling, not its equations one by one (its inter-arrival densities are here
+the Gaussian predictions of the PRI state models, which makes a modulated source's intervals a
+Markov-modulated rather than an i.i.d. renewal sequence).  A source whose next emission is overdue at a pulse
 (`kalman.overdue`'s MK94 VI-C-3 test on its best model) coasts: its models predict through the missed
 emission, which costs -log p_miss.
 
 - `agile-kf`: beam 1, lag 0: each pulse goes to the source (or spurious) of least cost, i.e. the MAP
   decision under the model-aware predictions, then that source's KF update: DM89's detect-then-filter.
-- `renewal-ml`: the maximum-likelihood path search of Young et al. (their section III) as a beam
-  search: the `beam` least-cost hypotheses survive each pulse, and pulse k is labelled from the best
+- `renewal-ml`: Young et al.'s maximum-likelihood path search, here a beam search: the `beam` least-cost hypotheses survive each pulse, and pulse k is labelled from the best
   hypothesis when pulse k + `lag` has arrived.  Anchored mode only (the priors name the sources).
 """
 

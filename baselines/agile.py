@@ -47,14 +47,22 @@ _MAX_COAST = 64
 _LOG_2PI = math.log(2 * math.pi)
 
 
+def _uniform_log(alive: np.ndarray) -> np.ndarray:
+    """log of the uniform distribution over the alive models (last axis), -inf elsewhere."""
+    return np.where(alive, -np.log(np.maximum(alive.sum(axis=-1, keepdims=True), 1)), -np.inf)
+
+
 class PathSearch:
     """The hypothesis search shared by `agile-kf` and `renewal-ml` (see the module doc).
 
     beam: hypotheses kept; lag: pulses of look-ahead before a label is final; gate: the overdue test's
     width in predicted standard deviations; switch: the per-pulse model switching probability; bank:
-    "priors" (the named model, the default bank where none is named) or "default" (always the bank)."""
+    "priors" (the named model, the default bank where none is named) or "default" (always the bank);
+    identify, margin: after a source's `identify`-th pulse its bank keeps only the models within
+    `margin` nats of the best one's evidence (0: never prune)."""
 
-    def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
+    def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
+                 identify: int = 100, margin: float = 20.0):
         if not isinstance(beam, int) or isinstance(beam, bool) or not 1 <= beam <= 4096:
             raise ValueError(f"beam={beam!r} must be an integer in [1, 4096]")
         if not isinstance(lag, int) or isinstance(lag, bool) or not 0 <= lag <= 256:
@@ -65,7 +73,12 @@ class PathSearch:
             raise ValueError(f"switch={switch!r} must be in [0, 1)")
         if bank not in ("priors", "default"):
             raise ValueError(f"bank={bank!r} must be 'priors' or 'default'")
+        if not isinstance(identify, int) or isinstance(identify, bool) or identify < 0:
+            raise ValueError(f"identify={identify!r} must be an integer >= 0 (0: never prune the bank)")
+        if not margin > 0:
+            raise ValueError(f"margin={margin!r} must be > 0")
         self.beam, self.lag, self.gate, self.switch, self.bank_mode = beam, lag, float(gate), float(switch), bank
+        self.identify, self.margin = identify, float(margin)
 
     # ---- setup ---------------------------------------------------------------------------------
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -82,8 +95,6 @@ class PathSearch:
                                                         priors.pri_jitter_std ** 2)
         self.r = max(priors.jitter_std, _MIN_JITTER_REL * float(period.min())) ** 2
         m = self.arrays.valid.shape[1]
-        self.log_switch = np.where(self.arrays.valid, 0.0, -np.inf)  # log of the uniform switch target, unnormalised
-        self.log_switch -= np.log(self.arrays.valid.sum(axis=1, keepdims=True))
         p_miss = priors.missing_prob
         self.miss_cost = -math.log(max(p_miss, _MISS_FLOOR))
         self.hit_cost = -math.log1p(-p_miss)
@@ -92,7 +103,10 @@ class PathSearch:
         # hypotheses (H of them): states (H, N, M, D+1[, D+1]), emission counts, model log-weights, costs
         self.state = LinearBlock(self.arrays.x0[None].copy(), self.arrays.p0[None].copy())
         self.count = np.zeros((1, n), dtype=np.int64)  # emissions passed (received or coasted)
-        self.logw = self.log_switch[None].copy()
+        self.alive = self.arrays.valid[None].copy()  # (H, N, M): the models still in each source's bank
+        self.logw = _uniform_log(self.alive)
+        self.evidence = np.zeros((1, n, m))  # each model's own log-likelihood of the source's pulses
+        self.taken = np.zeros((1, n), dtype=np.int64)  # pulses each source took
         self.cost = np.zeros(1)
         self.first = np.full((1, n), np.nan)  # first pulse taken (the phase estimate)
         self.history = np.zeros((1, self.lag + 1), dtype=np.int64)  # labels of pulses k - lag .. k
@@ -137,7 +151,7 @@ class PathSearch:
         self._coast(y)
         e, s = linear_innovation(self.state, y, TAU, self.r)  # (H, N, M)
         ll = -0.5 * (_LOG_2PI + np.log(s) + e * e / s)  # each model's predictive log-density
-        joint = self.logw + np.where(self.arrays.valid, ll, -np.inf)
+        joint = self.logw + np.where(self.alive, ll, -np.inf)
         top = joint.max(axis=2, keepdims=True)
         src_ll = (top + np.log(np.exp(joint - top).sum(axis=2, keepdims=True)))[..., 0]  # (H, N)
         ext = self.cost[:, None] - src_ll + self.hit_cost
@@ -151,6 +165,7 @@ class PathSearch:
         self.cost = flat[pick]
         self.state = self.state.take(h)
         self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h].copy()
+        self.alive, self.evidence, self.taken = self.alive[h], self.evidence[h], self.taken[h]
         self.history = np.concatenate([self.history[h, 1:], j[:, None]], axis=1)
         took = j < self.n
         if took.any():
@@ -161,13 +176,14 @@ class PathSearch:
             x[rows, src], p[rows, src] = upd.x, upd.p
             self.state = LinearBlock(x, p)
             # model probabilities: Bayes on the pulse, then the switching mix (IMM's Markov step)
-            w = self.logw[rows, src] + ll[h[rows], src]
-            w = np.where(self.arrays.valid[src], w, -np.inf)
+            self._identify(rows, src, ll[h[rows], src])
+            alive = self.alive[rows, src]
+            w = np.where(alive, self.logw[rows, src] + ll[h[rows], src], -np.inf)
             w -= w.max(axis=1, keepdims=True)
             w -= np.log(np.exp(w).sum(axis=1, keepdims=True))
             if self.switch > 0 and self._mixing:
-                self._mix(rows, src, w)
-                w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + self.log_switch[src])
+                self._mix(rows, src, w, alive)
+                w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + _uniform_log(alive))
             self.logw = self.logw.copy()
             self.logw[rows, src] = w
             self.first[rows, src] = np.where(np.isnan(self.first[rows, src]), y, self.first[rows, src])
@@ -175,11 +191,30 @@ class PathSearch:
             mask[rows, src] = True
             self._advance(mask)
 
-    def _mix(self, rows: np.ndarray, src: np.ndarray, logw: np.ndarray) -> None:
+    def _identify(self, rows: np.ndarray, src: np.ndarray, ll: np.ndarray) -> None:
+        """Modulation identification: each model's own evidence (its predictive log-likelihood of the
+        pulses the source took, without switching) accumulates; when the source has taken `identify`
+        pulses (several cycles of any simulated modulation) the models more than `margin` nats behind
+        the best leave its bank for good.  A steady source then keeps no broad model with which it
+        could take over an agile source's pulses (or hand its own over)."""
+        self.evidence = self.evidence.copy()
+        self.evidence[rows, src] += np.where(self.alive[rows, src], ll, 0.0)
+        self.taken = self.taken.copy()
+        self.taken[rows, src] += 1
+        due = self.taken[rows, src] == self.identify
+        if self.identify and due.any():
+            r, i = rows[due], src[due]
+            ev = np.where(self.alive[r, i], self.evidence[r, i], -np.inf)
+            self.alive = self.alive.copy()
+            self.alive[r, i] &= ev >= ev.max(axis=1, keepdims=True) - self.margin
+            self.logw = self.logw.copy()
+            self.logw[r, i] = np.where(self.alive[r, i], self.logw[r, i], -np.inf)
+
+    def _mix(self, rows: np.ndarray, src: np.ndarray, logw: np.ndarray, alive: np.ndarray) -> None:
         """IMM's interaction step (Blom & Bar-Shalom) within each model family: model j restarts from
         the mix of the family's states weighted by p_ij mu_i, with p = (1 - switch) I + switch U."""
         mu = np.exp(logw)  # (R, M)
-        valid = self.arrays.valid[src]
+        valid = alive
         trans = (1 - self.switch) * np.eye(self._m) + self.switch * valid[:, None, :] / valid.sum(axis=1)[:, None, None]
         wij = np.where(self.arrays.same_family[src], trans * mu[:, :, None], 0.0)  # (R, i, j)
         if not (wij.sum(axis=1) > 0).all():
@@ -221,12 +256,14 @@ class PathSearch:
 class AgileKF(PathSearch):
     """`agile-kf`: the model-bank tracker with MAP decisions (beam 1, lag 0)."""
 
-    def __init__(self, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
-        super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank)
+    def __init__(self, gate: float = 5.0, switch: float = 0.01, bank: str = "priors", identify: int = 100,
+                 margin: float = 20.0):
+        super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin)
 
 
 class RenewalML(PathSearch):
     """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`."""
 
-    def __init__(self, beam: int = 64, lag: int = 16, gate: float = 5.0, switch: float = 0.01, bank: str = "priors"):
-        super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank)
+    def __init__(self, beam: int = 64, lag: int = 16, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
+                 identify: int = 100, margin: float = 20.0):
+        super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin)

@@ -238,3 +238,17 @@ def test_renewal_ml_on_agile_v1_first_test_seeds():
 
     scores = {job.scenario["name"]: run_job(job)["score"] for job in make_jobs(["renewal-ml"], "agile-v1", max_seeds=1)}
     assert len(scores) == 9 and min(scores.values()) >= 0.9, scores
+
+
+def test_simulated_agile_v1_priors_file_names_the_modulations(tmp_path, capsys):
+    """`deint simulate --priors-out` writes the modulation key, and `deint label` reads it back: with it
+    agile-kf labels the stagger scenario's episode as well as its suite runs do."""
+    out = tmp_path / "p.csv"
+    assert main(["simulate", "agile-v1/agile-stagger3", "--seed", "1000001", "-o", str(out), "--priors-out",
+                 str(tmp_path / "pr.json")]) == 0
+    priors = json.loads((tmp_path / "pr.json").read_text())
+    assert priors["modulation"][0] == {"kind": "stagger", "pattern": [1.0, 1.3, 1.7]}
+    assert priors["modulation"][1:] == [{"kind": "constant"}, {"kind": "constant"}]
+    labels = label_file(tmp_path, capsys, "agile-kf")
+    truth = np.array([int(r.split(",")[-1]) for r in out.read_text().split()[1:]])
+    assert np.mean(labels == truth) > 0.95

@@ -59,10 +59,12 @@ class PathSearch:
     width in predicted standard deviations; switch: the per-pulse model switching probability; bank:
     "priors" (the named model, the default bank where none is named) or "default" (always the bank);
     identify, margin: after a source's `identify`-th pulse its bank keeps only the models within
-    `margin` nats of the best one's evidence (0: never prune)."""
+    `margin` nats of the best one's evidence (0: never prune); reset_after: a source coasted through
+    more arrivals than this in a row gets an arrival variance of at least PRI^2 / 12 (dokf's dropout
+    reset), so a source that stops and restarts, or starts late, is acquired again."""
 
     def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
-                 identify: int = 100, margin: float = 20.0):
+                 identify: int = 100, margin: float = 20.0, reset_after: int = 4):
         if not isinstance(beam, int) or isinstance(beam, bool) or not 1 <= beam <= 4096:
             raise ValueError(f"beam={beam!r} must be an integer in [1, 4096]")
         if not isinstance(lag, int) or isinstance(lag, bool) or not 0 <= lag <= 256:
@@ -78,7 +80,9 @@ class PathSearch:
         if not margin > 0:
             raise ValueError(f"margin={margin!r} must be > 0")
         self.beam, self.lag, self.gate, self.switch, self.bank_mode = beam, lag, float(gate), float(switch), bank
-        self.identify, self.margin = identify, float(margin)
+        if not isinstance(reset_after, int) or isinstance(reset_after, bool) or reset_after < 1:
+            raise ValueError(f"reset_after={reset_after!r} must be an integer >= 1")
+        self.identify, self.margin, self.reset_after = identify, float(margin), reset_after
 
     # ---- setup ---------------------------------------------------------------------------------
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -107,6 +111,7 @@ class PathSearch:
         self.logw = _uniform_log(self.alive)
         self.evidence = np.zeros((1, n, m))  # each model's own log-likelihood of the source's pulses
         self.taken = np.zeros((1, n), dtype=np.int64)  # pulses each source took
+        self.missed = np.zeros((1, n), dtype=np.int64)  # emissions coasted through since the last one taken
         self.cost = np.zeros(1)
         self.first = np.full((1, n), np.nan)  # first pulse taken (the phase estimate)
         self.history = np.zeros((1, self.lag + 1), dtype=np.int64)  # labels of pulses k - lag .. k
@@ -146,6 +151,13 @@ class PathSearch:
                 return
             self.cost = self.cost + self.miss_cost * late.sum(axis=1)
             self._advance(late)
+            self.missed = self.missed + late
+            lost = late & (self.missed > self.reset_after)
+            if lost.any():  # a dropout (or a late start): open the arrival up to a whole PRI (as dokf)
+                p = self.state.p.copy()
+                floor = (pri[lost] ** 2 / 12.0)[:, None]
+                p[lost, :, TAU, TAU] = np.maximum(p[lost, :, TAU, TAU], floor)
+                self.state = LinearBlock(self.state.x, p)
 
     def _step(self, y: float) -> None:
         self._coast(y)
@@ -166,6 +178,7 @@ class PathSearch:
         self.state = self.state.take(h)
         self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h].copy()
         self.alive, self.evidence, self.taken = self.alive[h], self.evidence[h], self.taken[h]
+        self.missed = self.missed[h].copy()
         self.history = np.concatenate([self.history[h, 1:], j[:, None]], axis=1)
         took = j < self.n
         if took.any():
@@ -187,6 +200,7 @@ class PathSearch:
             self.logw = self.logw.copy()
             self.logw[rows, src] = w
             self.first[rows, src] = np.where(np.isnan(self.first[rows, src]), y, self.first[rows, src])
+            self.missed[rows, src] = 0
             mask = np.zeros(took.shape + (self.n,), dtype=bool)
             mask[rows, src] = True
             self._advance(mask)
@@ -257,13 +271,15 @@ class AgileKF(PathSearch):
     """`agile-kf`: the model-bank tracker with MAP decisions (beam 1, lag 0)."""
 
     def __init__(self, gate: float = 5.0, switch: float = 0.01, bank: str = "priors", identify: int = 100,
-                 margin: float = 20.0):
-        super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin)
+                 margin: float = 20.0, reset_after: int = 4):
+        super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin,
+                         reset_after=reset_after)
 
 
 class RenewalML(PathSearch):
     """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`."""
 
     def __init__(self, beam: int = 64, lag: int = 16, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
-                 identify: int = 100, margin: float = 20.0):
-        super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin)
+                 identify: int = 100, margin: float = 20.0, reset_after: int = 4):
+        super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin,
+                         reset_after=reset_after)

@@ -61,10 +61,15 @@ class PathSearch:
     identify, margin: after a source's `identify`-th pulse its bank keeps only the models within
     `margin` nats of the best one's evidence (0: never prune); reset_after: a source coasted through
     more arrivals than this in a row gets an arrival variance of at least PRI^2 / 12 (dokf's dropout
-    reset), so a source that stops and restarts, or starts late, is acquired again."""
+    reset), so a source that stops and restarts, or starts late, is acquired again.  Blind mode (where
+    `blind_ok`): birth: the cost of a new track's first pulse (nats); pri_range: max/min PRI of the
+    log-uniform prior on a new track's first interval."""
+
+    blind_ok = False
 
     def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
-                 identify: int = 100, margin: float = 20.0, reset_after: int = 4):
+                 identify: int = 100, margin: float = 20.0, reset_after: int = 4, birth: float = 10.0,
+                 pri_range: float = 100.0):
         if not isinstance(beam, int) or isinstance(beam, bool) or not 1 <= beam <= 4096:
             raise ValueError(f"beam={beam!r} must be an integer in [1, 4096]")
         if not isinstance(lag, int) or isinstance(lag, bool) or not 0 <= lag <= 256:
@@ -83,26 +88,37 @@ class PathSearch:
         if not isinstance(reset_after, int) or isinstance(reset_after, bool) or reset_after < 1:
             raise ValueError(f"reset_after={reset_after!r} must be an integer >= 1")
         self.identify, self.margin, self.reset_after = identify, float(margin), reset_after
+        if not pri_range > 1:
+            raise ValueError(f"pri_range={pri_range!r} must be > 1")
+        self.birth, self.pri_range = float(birth), float(pri_range)
 
     # ---- setup ---------------------------------------------------------------------------------
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if priors.blind:
-            raise NotApplicable("agile-kf and renewal-ml (anchored) need priors; blind scenarios have none")
         n = self.n = priors.n_labels
-        period = np.asarray(priors.period, dtype=np.float64)
-        named = priors.modulation if self.bank_mode == "priors" else None
-        banks = [(pri_models.from_modulation(named[i], float(period[i])),) if named is not None
-                 and named[i] is not None else pri_models.default_bank() for i in range(n)]
-        phase = np.where(np.isfinite(priors.phase), priors.phase, 0.0)
-        phase_std = np.where(np.isfinite(priors.phase_std), priors.phase_std, 1e3 * period)
-        self.arrays: BankArrays = pri_models.build_bank(banks, period, priors.period_std, phase, phase_std,
-                                                        priors.pri_jitter_std ** 2)
-        self.r = max(priors.jitter_std, _MIN_JITTER_REL * float(period.min())) ** 2
+        self.blind = priors.blind
+        if self.blind:  # tracks are born from the pulses: constant PRIs, set by each track's first interval
+            if not self.blind_ok:
+                raise NotApplicable(f"{type(self).__name__} needs priors; blind scenarios have none")
+            period = np.ones(n)
+            banks = [(pri_models.constant(),)] * n
+            phase, phase_std = np.zeros(n), np.ones(n)
+            self.r = max(priors.jitter_std, 1e-9) ** 2
+        else:
+            period = np.asarray(priors.period, dtype=np.float64)
+            named = priors.modulation if self.bank_mode == "priors" else None
+            banks = [(pri_models.from_modulation(named[i], float(period[i])),) if named is not None
+                     and named[i] is not None else pri_models.default_bank() for i in range(n)]
+            phase = np.where(np.isfinite(priors.phase), priors.phase, 0.0)
+            phase_std = np.where(np.isfinite(priors.phase_std), priors.phase_std, 1e3 * period)
+            self.r = max(priors.jitter_std, _MIN_JITTER_REL * float(period.min())) ** 2
+        self.arrays: BankArrays = pri_models.build_bank(banks, period, priors.period_std if not self.blind else period,
+                                                        phase, phase_std, priors.pri_jitter_std ** 2)
         m = self.arrays.valid.shape[1]
         p_miss = priors.missing_prob
         self.miss_cost = -math.log(max(p_miss, _MISS_FLOOR))
         self.hit_cost = -math.log1p(-p_miss)
         rate = float(np.sum(1.0 / period))
+        self.spurious_rate = priors.spurious_rate
         self.spurious_cost = -math.log(priors.spurious_rate * rate) if priors.spurious_rate > 0 else None
         # hypotheses (H of them): states (H, N, M, D+1[, D+1]), emission counts, model log-weights, costs
         self.state = LinearBlock(self.arrays.x0[None].copy(), self.arrays.p0[None].copy())
@@ -112,6 +128,8 @@ class PathSearch:
         self.evidence = np.zeros((1, n, m))  # each model's own log-likelihood of the source's pulses
         self.taken = np.zeros((1, n), dtype=np.int64)  # pulses each source took
         self.missed = np.zeros((1, n), dtype=np.int64)  # emissions coasted through since the last one taken
+        self.last = np.full((1, n), np.nan)  # the last pulse taken
+        self.y0 = None
         self.cost = np.zeros(1)
         self.first = np.full((1, n), np.nan)  # first pulse taken (the phase estimate)
         self.history = np.zeros((1, self.lag + 1), dtype=np.int64)  # labels of pulses k - lag .. k
@@ -147,6 +165,8 @@ class PathSearch:
             phi = np.take_along_axis(self.arrays.regressor(self.count), best[..., None], axis=2)[:, :, 0]
             pri = np.einsum("hnd,hnd->hn", phi, x[..., 1:])
             late = y - x[..., TAU] > self.gate * np.sqrt(var + self.r) + 0.5 * pri
+            if self.blind:  # a track with fewer than two pulses has no PRI yet: it waits
+                late &= self.taken >= 2
             if not late.any():
                 return
             self.cost = self.cost + self.miss_cost * late.sum(axis=1)
@@ -167,6 +187,8 @@ class PathSearch:
         top = joint.max(axis=2, keepdims=True)
         src_ll = (top + np.log(np.exp(joint - top).sum(axis=2, keepdims=True)))[..., 0]  # (H, N)
         ext = self.cost[:, None] - src_ll + self.hit_cost
+        if self.blind:
+            ext = self._blind_costs(ext, y)
         if self.spurious_cost is not None:
             ext = np.concatenate([ext, self.cost[:, None] + self.spurious_cost], axis=1)
         flat = ext.ravel()
@@ -178,9 +200,11 @@ class PathSearch:
         self.state = self.state.take(h)
         self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h].copy()
         self.alive, self.evidence, self.taken = self.alive[h], self.evidence[h], self.taken[h]
-        self.missed = self.missed[h].copy()
+        self.missed, self.last = self.missed[h].copy(), self.last[h].copy()
         self.history = np.concatenate([self.history[h, 1:], j[:, None]], axis=1)
         took = j < self.n
+        if self.blind and took.any():
+            took = self._acquire(took, j, y)
         if took.any():
             rows, src = np.nonzero(took)[0], j[took]
             sub = LinearBlock(self.state.x[rows, src], self.state.p[rows, src])
@@ -201,9 +225,62 @@ class PathSearch:
             self.logw[rows, src] = w
             self.first[rows, src] = np.where(np.isnan(self.first[rows, src]), y, self.first[rows, src])
             self.missed[rows, src] = 0
+            self.last[rows, src] = y
             mask = np.zeros(took.shape + (self.n,), dtype=bool)
             mask[rows, src] = True
             self._advance(mask)
+
+    # ---- blind mode: tracks born from the pulses -----------------------------------------------------
+    def _blind_costs(self, ext: np.ndarray, y: float) -> np.ndarray:
+        """The renewal likelihood of a track's first two pulses, whose PRI nothing predicts: its first
+        pulse is a birth (cost `birth`, offered in the first free slot only: the free slots are alike),
+        its second comes after an interval drawn from a log-uniform PRI prior over `pri_range` (density
+        1 / (d ln range)); tracks with two pulses or more are predicted by their models."""
+        ext = np.where(self.taken >= 2, ext, np.inf)
+        gap = y - self.last
+        with np.errstate(invalid="ignore", divide="ignore"):
+            second = self.cost[:, None] + np.log(gap) + math.log(math.log(self.pri_range)) + self.hit_cost
+        ext = np.where((self.taken == 1) & (gap > 0), second, ext)
+        free = self.taken == 0
+        first = np.argmax(free, axis=1)
+        rows = np.nonzero(free.any(axis=1))[0]
+        ext[rows, first[rows]] = self.cost[rows] + self.birth
+        if self.spurious_rate > 0:  # the Poisson density of spurious pulses from the rate seen so far
+            if self.y0 is None:
+                self.y0 = y
+            rate = (self.k + 1) / max(y - self.y0, 1e-9) * self.spurious_rate / (1 + self.spurious_rate)
+            self.spurious_cost = -math.log(max(rate, 1e-300))
+        return ext
+
+    def _acquire(self, took: np.ndarray, j: np.ndarray, y: float) -> np.ndarray:
+        """Births and second pulses (blind mode): a born track records its pulse; a track's second pulse
+        starts its constant-PRI state, T = the interval (var 2R), tau = y (var R), which then advances
+        to its next emission.  Returns the rows whose pulse still needs the ordinary update."""
+        rows = np.nonzero(took)[0]
+        src = j[rows]
+        n_taken = self.taken[rows, src]
+        self.taken, self.last, self.first = self.taken.copy(), self.last.copy(), self.first.copy()
+        born = n_taken == 0
+        self.first[rows[born], src[born]] = y
+        second = n_taken == 1
+        if second.any():
+            r, i = rows[second], src[second]
+            x, p = self.state.x.copy(), self.state.p.copy()
+            x[r, i] = 0.0
+            x[r, i, :, TAU], x[r, i, :, 1] = y, y - self.last[r, i][:, None]
+            p[r, i] = 0.0
+            p[r, i, :, TAU, TAU], p[r, i, :, TAU, 1], p[r, i, :, 1, TAU] = self.r, self.r, self.r
+            p[r, i, :, 1, 1] = 2 * self.r
+            self.state = LinearBlock(x, p)
+            mask = np.zeros(took.shape + (self.n,), dtype=bool)
+            mask[r, i] = True
+            self._advance(mask)
+        fresh = born | second
+        self.taken[rows[fresh], src[fresh]] += 1
+        self.last[rows[fresh], src[fresh]] = y
+        out = took.copy()
+        out[rows[fresh]] = False
+        return out
 
     def _identify(self, rows: np.ndarray, src: np.ndarray, ll: np.ndarray) -> None:
         """Modulation identification: each model's own evidence (its predictive log-likelihood of the
@@ -255,9 +332,12 @@ class PathSearch:
         col = want - (self.k - self.lag)  # the history holds pulses k - lag .. k
         return int(self.history[0, col])  # hypotheses are sorted: row 0 is the best
 
-    def estimates(self) -> dict[str, np.ndarray]:
+    def estimates(self) -> dict[str, np.ndarray] | None:
         """The best hypothesis's sources: each one's mean PRI under its most probable model, and the
-        first pulse it took (its phase; the prior's where it took none)."""
+        first pulse it took (its phase; the prior's where it took none).  Blind: None (free labels
+        have no estimate)."""
+        if self.blind:
+            return None
         best = self._best_model()[0]
         period = np.empty(self.n)
         for i in range(self.n):
@@ -277,9 +357,13 @@ class AgileKF(PathSearch):
 
 
 class RenewalML(PathSearch):
-    """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`."""
+    """`renewal-ml`: Young et al.'s ML path search, a beam of `beam` hypotheses decided at lag `lag`;
+    in blind mode tracks are born from the pulses (`birth`, `pri_range`: see `PathSearch`)."""
+
+    blind_ok = True
 
     def __init__(self, beam: int = 64, lag: int = 16, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
-                 identify: int = 100, margin: float = 20.0, reset_after: int = 4):
+                 identify: int = 100, margin: float = 20.0, reset_after: int = 4, birth: float = 10.0,
+                 pri_range: float = 100.0):
         super().__init__(beam=beam, lag=lag, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin,
-                         reset_after=reset_after)
+                         reset_after=reset_after, birth=birth, pri_range=pri_range)

@@ -39,7 +39,7 @@ from baselines import pri_models
 from baselines.kalman import LinearBlock, linear_innovation, linear_predict, linear_update
 from baselines.pri_models import TAU, BankArrays
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
+from deint_env.errors import DeintError, NotApplicable
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _MISS_FLOOR = 1e-3  # p_miss used for coasting when the priors say nothing is missed (a track can slip)
@@ -102,7 +102,10 @@ class PathSearch:
             period = np.ones(n)
             banks = [(pri_models.constant(),)] * n
             phase, phase_std = np.zeros(n), np.ones(n)
-            self.r = max(priors.jitter_std, 1e-9) ** 2
+            if not priors.jitter_std > 0:  # nothing else sets the scale of a track's errors
+                raise DeintError("renewal-ml in blind mode needs the TOA jitter: give a priors file "
+                                 '{"blind": true, "label_budget": N, "jitter_std": S} (S > 0)')
+            self.r = priors.jitter_std ** 2
         else:
             period = np.asarray(priors.period, dtype=np.float64)
             named = priors.modulation if self.bank_mode == "priors" else None

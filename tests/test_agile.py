@@ -252,3 +252,35 @@ def test_simulated_agile_v1_priors_file_names_the_modulations(tmp_path, capsys):
     labels = label_file(tmp_path, capsys, "agile-kf")
     truth = np.array([int(r.split(",")[-1]) for r in out.read_text().split()[1:]])
     assert np.mean(labels == truth) > 0.95
+
+
+def links(labels: np.ndarray) -> np.ndarray:
+    """Each pulse's predecessor under a labelling (-1: none; spurious labels link nowhere)."""
+    last, out = {}, np.full(labels.size, -1)
+    for k, lab in enumerate(labels.tolist()):
+        if lab >= 0:
+            out[k] = last.get(lab, -1)
+            last[lab] = k
+    return out
+
+
+def test_renewal_ml_blind_links_a_generated_file(tmp_path, capsys):
+    """Blind mode (a blind priors file: a label budget and the channel's jitter, no periods): tracks
+    are born from the pulses; on three steady sources more than 95 % of the pulses are linked to their
+    true predecessor, against under 40 % for `random`.  Without the jitter it refuses in one line."""
+    sources = [(0.0, 13.0, "constant", {}), *STEADY]
+    toa, truth = pulse_train(sources, 2000.0, np.random.default_rng(7))
+    (tmp_path / "p.csv").write_text("toa\n" + "\n".join(repr(float(t)) for t in toa) + "\n")
+    (tmp_path / "pr.json").write_text(json.dumps({"blind": True, "label_budget": 6, "jitter_std": SIGMA}))
+    code = main(["label", str(tmp_path / "p.csv"), "--policy", "renewal-ml", "--n-sources", "6",
+                 "-o", str(tmp_path / "out.csv")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2 and len(err) == 1 and "jitter_std" in err[0]
+    acc = {}
+    for policy in ("renewal-ml", "random"):
+        code = main(["label", str(tmp_path / "p.csv"), "--policy", policy, "--priors", str(tmp_path / "pr.json"),
+                     "-o", str(tmp_path / "out.csv")])
+        assert code == 0, capsys.readouterr().err
+        labels = np.array([int(r.split(",")[1]) for r in (tmp_path / "out.csv").read_text().split()[1:]])
+        acc[policy] = np.mean(links(labels) == links(truth))
+    assert acc["renewal-ml"] > 0.95 and acc["random"] < 0.4, acc

@@ -35,4 +35,4 @@ register_policy("agile-kf", "baselines.agile:AgileKF",
                             "constant/trend/stagger/switch) on the Kalman core, MAP assignment, coasting")
 register_policy("renewal-ml", "baselines.agile:RenewalML",
                 description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
-                            "with missing and spurious pulses (anchored)")
+                            "with missing and spurious pulses; blind mode: tracks born from the pulses")

@@ -25,7 +25,10 @@ emission, which costs -log p_miss.
 - `agile-kf`: beam 1, lag 0: each pulse goes to the source (or spurious) of least cost, i.e. the MAP
   decision under the model-aware predictions, then that source's KF update: DM89's detect-then-filter.
 - `renewal-ml`: Young et al.'s maximum-likelihood path search, here a beam search: the `beam` least-cost hypotheses survive each pulse, and pulse k is labelled from the best
-  hypothesis when pulse k + `lag` has arrived.  Anchored mode only (the priors name the sources).
+  hypothesis when pulse k + `lag` has arrived.  In blind mode (no priors, a label budget) the tracks
+  are born from the pulses: a pulse may start a track (cost `birth`), a track's second pulse comes
+  after an interval with a log-uniform prior over `pri_range` and starts its constant-PRI state, and
+  from its third pulse on a track is predicted as in the anchored mode.
 """
 
 from __future__ import annotations

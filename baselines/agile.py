@@ -114,9 +114,11 @@ class PathSearch:
             named = priors.modulation if self.bank_mode == "priors" else None
             banks = [(pri_models.from_modulation(named[i], float(period[i])),) if named is not None
                      and named[i] is not None else pri_models.default_bank() for i in range(n)]
-            phase = np.where(np.isfinite(priors.phase), priors.phase, 0.0)
-            phase_std = np.where(np.isfinite(priors.phase_std), priors.phase_std, 1e3 * period)
+            self.unknown_phase = ~np.isfinite(priors.phase)  # placed by the first pulse (see `_step`)
+            phase = np.where(self.unknown_phase, 0.0, priors.phase)
+            phase_std = np.where(self.unknown_phase, period, priors.phase_std)
             self.r = max(priors.jitter_std, _MIN_JITTER_REL * float(period.min())) ** 2
+        self.period = period
         self.arrays: BankArrays = pri_models.build_bank(banks, period, priors.period_std if not self.blind else period,
                                                         phase, phase_std, priors.pri_jitter_std ** 2)
         m = self.arrays.valid.shape[1]
@@ -186,9 +188,21 @@ class PathSearch:
                 self.state = LinearBlock(self.state.x, p)
 
     def _step(self, y: float) -> None:
+        if self.k == 0 and not self.blind and self.unknown_phase.any():
+            # an unknown phase lies in [y0, y0 + T) (every source emits within a period of the first
+            # pulse): a Gaussian over that window, mean y0 + T/2 and std T/2
+            x, p = self.state.x.copy(), self.state.p.copy()
+            u = np.nonzero(self.unknown_phase)[0]
+            t = self.period[u][:, None]
+            xu, pu = x[:, u], p[:, u]  # (H, n_u, M, D+1[, D+1])
+            xu[..., TAU] = y + 0.5 * t
+            pu[..., TAU, TAU] = (0.5 * t) ** 2
+            x[:, u], p[:, u] = xu, pu
+            self.state = LinearBlock(x, p)
         self._coast(y)
         e, s = linear_innovation(self.state, y, TAU, self.r)  # (H, N, M)
-        ll = -0.5 * (_LOG_2PI + np.log(s) + e * e / s)  # each model's predictive log-density
+        with np.errstate(invalid="ignore", divide="ignore"):  # pruned models' states are left to drift
+            ll = np.where(self.alive, -0.5 * (_LOG_2PI + np.log(s) + e * e / s), -np.inf)  # predictive log-density
         joint = self.logw + np.where(self.alive, ll, -np.inf)
         top = joint.max(axis=2, keepdims=True)
         src_ll = (top + np.log(np.exp(joint - top).sum(axis=2, keepdims=True)))[..., 0]  # (H, N)

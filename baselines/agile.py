@@ -334,11 +334,13 @@ class PathSearch:
         x, p = self.state.x[rows, src], self.state.p[rows, src]  # (R, M, D+1[, D+1])
         r, m, d = x.shape
         wt = np.swapaxes(wij, 1, 2)  # (R, j, i)
-        dx = x - x[:, :1]  # about slot 0 (the spread of the moments, not the size of tau)
-        x0 = wt @ dx  # mixed means, about slot 0
-        spread = p + dx[..., :, None] * dx[..., None, :]  # P_i + dx_i dx_i'
-        p0 = (wt @ spread.reshape(r, m, d * d)).reshape(r, m, d, d) - x0[..., :, None] * x0[..., None, :]
-        self.state.x[rows, src], self.state.p[rows, src] = x0 + x[:, :1], p0
+        x0 = wt @ x  # mixed means
+        p0 = np.empty_like(p)
+        for j in range(m):  # sum_i w_ij (P_i + dx dx'), dx = x_i - x0_j: positive by construction
+            dx = x - x0[:, j:j + 1]
+            spread = (p + dx[..., :, None] * dx[..., None, :]).reshape(r, m, d * d)
+            p0[:, j] = (wt[:, j:j + 1] @ spread).reshape(r, d, d)
+        self.state.x[rows, src], self.state.p[rows, src] = x0, p0
 
     # ---- the policy protocol -----------------------------------------------------------------------
     def act(self, obs: dict[str, Any]) -> int:

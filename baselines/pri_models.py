@@ -120,7 +120,7 @@ def sinusoidal(cycle: int, depth: float) -> PRIModel:
                   spread=[0.0, depth / np.sqrt(2), depth / np.sqrt(2)])
 
 
-def trend(rate_std: float = 0.02, rate_noise: float = 0.003) -> PRIModel:
+def trend(rate_std: float = 0.02, rate_noise: float = 0.006) -> PRIModel:
     return _model("trend", [[1.0, 0.0]], [[1.0, 1.0], [0.0, 1.0]], [[0.0, 0.0], [0.0, rate_noise ** 2]],
                   unit=[1.0, 0.0], spread=[0.0, rate_std], family=PRI_FAMILY)
 

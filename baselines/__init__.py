@@ -32,6 +32,12 @@ POLICIES = (
     PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED,
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
+    PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,
+               description="agile PRIs: a bank of PRI state models per source (the one the priors name, else "
+                           "constant/trend/stagger/switch) on the Kalman core, MAP assignment, coasting"),
+    PolicyInfo("renewal-ml", "baselines.agile:RenewalML",
+               description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
+                           "with missing and spurious pulses; blind mode: tracks born from the pulses"),
     PolicyInfo("ekf-bank", "baselines.ekf:EKFBank", modes=ANCHORED,
                description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
                            "phase initialisations; labels from the best filter's predicted arrivals"),

@@ -166,3 +166,39 @@ def phase_estimate(b: Block, n_assigned: np.ndarray) -> np.ndarray:
     """phi = tau - (n - 1) T: the first arrival of the line through the filtered (T, tau), which for
     a constant period is the smoothed phase estimate (MK94 II-G's fixed-interval smoother)."""
     return b.tau - (np.asarray(n_assigned) - 1) * b.period
+
+
+# ---- the general linear-Gaussian block (agile PRI models, `baselines.pri_models`) -------------------
+class LinearBlock(NamedTuple):
+    """A batched linear-Gaussian state of any dimension d: mean `x` (..., d) and covariance `p`
+    (..., d, d).  The DLM's 2x2 `Block` is the case x = (T, tau); PRI models with more parameters
+    (stagger levels, a ramp, a sinusoid's quadratures) augment it (see `baselines.pri_models`)."""
+
+    x: np.ndarray
+    p: np.ndarray
+
+    def take(self, index) -> LinearBlock:
+        return LinearBlock(self.x[index], self.p[index])
+
+
+def linear_predict(b: LinearBlock, f: np.ndarray, q: np.ndarray, c: np.ndarray | None = None) -> LinearBlock:
+    """x' = F x + c, P' = F P F' + Q, with F, Q and the known input c broadcast over the batch."""
+    x = (f @ b.x[..., None])[..., 0]
+    if c is not None:
+        x = x + c
+    return LinearBlock(x, f @ b.p @ np.swapaxes(f, -1, -2) + q)
+
+
+def linear_innovation(b: LinearBlock, y: np.ndarray | float, index: int, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Innovation of a scalar measurement of state component `index` (H = e_index) and its variance."""
+    return y - b.x[..., index], b.p[..., index, index] + r
+
+
+def linear_update(b: LinearBlock, e: np.ndarray, s: np.ndarray, index: int, r: float) -> LinearBlock:
+    """The KF update for H = e_index, in Joseph form (I - K H) P (I - K H)' + K R K', which stays
+    symmetric and positive when a prior variance is huge (an unknown phase)."""
+    k = b.p[..., :, index] / s[..., None]
+    x = b.x + k * e[..., None]
+    a = np.eye(b.x.shape[-1]) - k[..., :, None] * np.eye(b.x.shape[-1])[index]  # I - K H
+    p = a @ b.p @ np.swapaxes(a, -1, -2) + r * k[..., :, None] * k[..., None, :]
+    return LinearBlock(x, p)

@@ -23,7 +23,9 @@ class Priors:
     and the coincidence resolution are treated as known, as in the papers.  The missing and spurious
     rates may be unknown (NaN): a priors file that does not state them (or states null) leaves them
     unknown, not zero; simulated episodes state their true rates.
-    `spurious_rate` is in spurious pulses per source pulse.
+    `spurious_rate` is in spurious pulses per source pulse.  `modulation` (None: not given) names
+    each track's PRI modulation where the priors know it (`PriorSpec.modulation`): its kind and its
+    deterministic parameters, never an episode's own draws (a sinusoid's phase, a drift's path).
     """
 
     n_labels: int
@@ -40,6 +42,7 @@ class Priors:
     coincidence_resolution: float = 0.0
     amplitude: np.ndarray | None = None
     amplitude_std: np.ndarray | None = None
+    modulation: tuple[Any, ...] | None = None  # per track a `scenario.Modulation` or None (not named)
 
     @property
     def spurious_label(self) -> int:
@@ -59,6 +62,8 @@ class Priors:
         if self.amplitude is not None:
             out["amplitude"] = np.array(self.amplitude, dtype=np.float64)
             out["amplitude_std"] = np.array(self.amplitude_std, dtype=np.float64)
+        if self.modulation is not None:
+            out["modulation"] = _modulation_json(self.modulation)
         return out
 
     @classmethod
@@ -67,6 +72,8 @@ class Priors:
         for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std"):
             if info.get(k) is not None:
                 kw[k] = np.asarray(info[k], dtype=np.float64)
+        if info.get("modulation") is not None:
+            kw["modulation"] = _parse_modulation(info["modulation"], int(info["n_labels"]), "priors")
         return cls(**kw)
 
     # ---- the priors file of docs/design.md section 7 --------------------------------------------
@@ -87,6 +94,8 @@ class Priors:
         if self.amplitude is not None:
             out["amplitude"] = self.amplitude.tolist()
             out["amplitude_std"] = self.amplitude_std.tolist()
+        if self.modulation is not None:
+            out["modulation"] = _modulation_json(self.modulation)
         return out
 
     @classmethod
@@ -95,7 +104,7 @@ class Priors:
         if not isinstance(d, dict):
             raise DeintError(f"{where}: must be a JSON object with at least 'period'")
         allowed = {"period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std",
-                   "blind", "label_budget", *SCALARS}
+                   "modulation", "blind", "label_budget", *SCALARS}
         unknown = sorted(set(d) - allowed)
         if unknown:
             raise DeintError(f"{where}: key {unknown[0]!r} is unknown; allowed: {', '.join(sorted(allowed))}")
@@ -158,8 +167,36 @@ class Priors:
             amplitude=amplitude,
             amplitude_std=amplitude_std if amplitude_std is not None else (
                 None if amplitude is None else 0.1 * amplitude),
+            modulation=None if d.get("modulation") is None else _parse_modulation(d["modulation"], n, where),
             **_scalars(),
         )
+
+
+def _modulation_json(modulation: tuple[Any, ...]) -> list[dict[str, Any] | None]:
+    from deint_env.scenario import _to_dict
+
+    return [None if m is None else {"kind": m.kind, **_to_dict(m)} for m in modulation]
+
+
+def _parse_modulation(value: Any, n: int, where: str) -> tuple[Any, ...]:
+    """`modulation`: a list of one entry per track, each null (not named) or a modulation object as in
+    a scenario file (`{"kind": "stagger", "pattern": [1, 1.5]}`; kinds and fields of
+    `deint_env.scenario.Modulation`)."""
+    from deint_env.scenario import Modulation, _from_dict
+
+    if not isinstance(value, list) or len(value) != n:
+        raise DeintError(f"{where}: modulation must be a list of {n} entries (one per track: null or an object "
+                         f"like {{\"kind\": \"stagger\", \"pattern\": [1, 1.5]}}), got {value!r}")
+    out = []
+    for m in value:
+        if m is None or isinstance(m, Modulation):
+            out.append(m)
+            continue
+        try:
+            out.append(_from_dict(Modulation, m, "modulation"))
+        except DeintError as e:
+            raise DeintError(f"{where}: {e}") from None
+    return tuple(out)
 
 
 @dataclass(frozen=True, eq=False)

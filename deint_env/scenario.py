@@ -269,6 +269,9 @@ class PriorSpec:
     kind="none": nothing but the label budget (blind mode).
     `source_prob`: the a-priori source probabilities pi_i; empty = proportional to the true pulse
     rates 1/T_i (MK94 section IV-2: known relative frequencies).
+    `modulation`: the priors name each source's PRI modulation (an emitter library's entry): its kind
+    and the spec's parameters (pattern, depth, cycle, alpha, drift_std), never what an episode draws
+    (a sinusoid's phase, a drift's path); phantom tracks of explicit priors name none.
     """
 
     kind: str = "perturbed"
@@ -280,6 +283,7 @@ class PriorSpec:
     period_bias: float = 1.0
     phase_error: float | None = 0.0
     source_prob: tuple[float, ...] = ()
+    modulation: bool = False
 
     def __post_init__(self) -> None:
         check(self.kind in PRIOR_KINDS, "priors.kind", self.kind, f"one of {', '.join(PRIOR_KINDS)}")
@@ -306,6 +310,8 @@ class PriorSpec:
         if self.source_prob:
             check(min(self.source_prob) > 0 and abs(sum(self.source_prob) - 1) < 1e-6, "priors.source_prob",
                   self.source_prob, "positive values summing to 1")
+        check(isinstance(self.modulation, bool) and not (self.modulation and self.kind == "none"),
+              "priors.modulation", self.modulation, "true or false (false for kind='none': blind priors name nothing)")
 
 
 @dataclass(frozen=True)

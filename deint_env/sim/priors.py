@@ -62,7 +62,10 @@ def episode_priors(spec: ScenarioSpec, g: Draws) -> list[Priors]:
         amplitude_std = np.maximum(std, 1e-3 * np.where(1e-9 > top, 1e-9, top)[:, None])  # max(top, 1e-9)
         if n > k:  # phantom tracks: the mean amplitude of the real ones
             amplitude[:, k:] = amp_mean.mean(axis=1)[:, None]
+    # PriorSpec.modulation: the sources' modulations as specified (no per-episode draw), none for phantoms
+    modulation = tuple([s.modulation for s in spec.sources[:min(n, k)]] + [None] * (n - k)) if ps.modulation \
+        else None
     return [Priors(n_labels=n, period=per, phase=ph, period_std=per_std, phase_std=ph_std, source_prob=pi,
-                   amplitude=amp, amplitude_std=amp_std, **common)
+                   amplitude=amp, amplitude_std=amp_std, modulation=modulation, **common)
             for per, ph, per_std, ph_std, pi, amp, amp_std in zip(p_period, p_phase, p_period_std, p_phase_std, prob,
                                                                   amplitude, amplitude_std)]

@@ -227,7 +227,7 @@ def robust_v0() -> Suite:
                  "cumulative jitter.", tuple(e))
 
 
-def agile_v0() -> Suite:
+def agile_v0(priors: PriorSpec = STD_PRIORS) -> Suite:
     steady = random_sources(2, 4.0)
     agile = Range(T_MIN, 2 * T_MIN, log=True)
     e = []
@@ -235,7 +235,7 @@ def agile_v0() -> Suite:
     def add(name, mod, desc, all_agile=False):
         srcs = (tuple(SourceSpec(period=agile, modulation=mod) for _ in range(3)) if all_agile
                 else (SourceSpec(period=agile, modulation=mod), *steady))
-        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=STD_PRIORS,
+        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=priors,
                                     description=desc), ["agile"], {"modulation": mod.kind, "all_agile": all_agile}))
 
     add("agile-stagger2", Modulation("stagger", pattern=(1.0, 1.5)), "one source with a 2-position stagger")
@@ -252,6 +252,14 @@ def agile_v0() -> Suite:
     add("agile-all-stagger", Modulation("stagger", pattern=(1.0, 1.3, 1.7)), "three 3-position staggered sources",
         all_agile=True)
     return Suite("agile-v0", 0, "Agile PRIs: stagger, sliding, wobulated, dwell-and-switch, drifting.", tuple(e))
+
+
+def agile_v1() -> Suite:
+    """agile-v0's scenarios (the same episodes, pulse for pulse) with priors that also name each source's
+    modulation (`PriorSpec.modulation`): what an emitter library tells a tracker."""
+    v0 = agile_v0(dataclasses.replace(STD_PRIORS, modulation=True))
+    return Suite("agile-v1", 1, "agile-v0 with priors naming each source's PRI modulation and its parameters.",
+                 v0.entries)
 
 
 def scale_v0() -> Suite:
@@ -278,7 +286,7 @@ def blind_v0() -> Suite:
 
 
 BUILDERS = {"paper-v0": paper_v0, "paper-v1": paper_v1, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
-            "scale-v0": scale_v0, "blind-v0": blind_v0}
+            "agile-v1": agile_v1, "scale-v0": scale_v0, "blind-v0": blind_v0}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -43,6 +43,8 @@ def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = N
 
 def split_seeds(entry: SuiteEntry, split: str) -> range:
     """The episode seeds of `entry` in `split` (module constants)."""
+    if split not in SPLITS:
+        raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
     if split == "test":
         return range(entry.test.start, entry.test.stop)
     hold = min(VALIDATION_SEEDS, len(entry.train) // 2)
@@ -72,14 +74,16 @@ class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
         blind = {e.spec.blind for _, e in self.entries}
         if len(blind) > 1:
             raise DeintError("the selected scenarios mix anchored and blind ones; train on one kind at a time")
-        self.split = split
         widest = max((e for _, e in self.entries), key=lambda e: e.spec.n_labels)
         super().__init__(num_envs, scenario=widest.spec, lag=lag, clustering_metrics=clustering_metrics,
                          autoreset_mode=autoreset_mode)
+        # The parent's `split` is one scenario's seed ranges (None here); this env's split names the range
+        # every sampled scenario's seed is drawn from.
+        self.seed_split = split
         self.scenario_names = [n for n, _ in self.entries]
 
     def seed_range(self, entry: SuiteEntry) -> range:
-        return split_seeds(entry, self.split)
+        return split_seeds(entry, self.seed_split)
 
     def _start(self, rows: list[int], seeds: list[int | None], infos: dict[str, Any]) -> None:
         picks: list[tuple[int, int]] = []  # (entry index, episode seed) per row

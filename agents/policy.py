@@ -28,6 +28,7 @@ from deint_env.wrappers import FeatureTracker
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 PPO_CHECKPOINT = CHECKPOINT_DIR / "ppo-two-source.safetensors"
+DAGGER_CHECKPOINT = CHECKPOINT_DIR / "dagger-core-v0-lag3.safetensors"
 
 
 @functools.lru_cache(maxsize=8)
@@ -116,6 +117,11 @@ class AgentPolicy:
         action = self._choose(tok.observation(), tok.action_masks()[0])
         tok.label(np.array([action]))
         return int(tok.env_actions(np.array([action]), self._spurious)[0])
+
+
+def dagger(deterministic: bool = True) -> AgentPolicy:
+    """The zoo's DAgger agent for core-v0 (`deint train --suite core-v0 --algo dagger`)."""
+    return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)
 
 
 def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:

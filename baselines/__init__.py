@@ -44,7 +44,7 @@ POLICIES = (
     PolicyInfo("ekf-coupled", "baselines.coupled:EKFCoupled", modes=ANCHORED,
                description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
                            "learning rule (12), in a bank as ekf-bank"),
-    PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=("blind",),
+    PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=BLIND, required=("model",),
                description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name, runs that "
                            "code), labelling windows of `window` pulses"),
     PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND,

@@ -75,6 +75,7 @@ class PolicyInfo:
     version: int = 1
     description: str = ""
     extra: str | None = None
+    required: tuple[str, ...] = ()  # parameters every spec must name (agent's checkpoint, tdc's model)
     provider: str = ""  # the entry point (or "register_policy") it came from
 
     def __post_init__(self) -> None:
@@ -167,9 +168,10 @@ def policy_info(name: str) -> PolicyInfo:
 
 
 def default_policies() -> list[str]:
-    """The policies leaderboards and benchmarks run by default: every registered one except adapters
-    (they need a model named) and those whose defaults have a pulse limit (tree: short trains only)."""
-    return [p.name for p in list_policies() if p.kind != "adapter" and p.limits.max_pulses is None]
+    """The policies leaderboards and benchmarks run by default: every registered one except those that
+    need a parameter named (an adapter's model, a checkpoint) and those whose defaults have a pulse
+    limit (tree: short trains only)."""
+    return [p.name for p in list_policies() if not p.required and p.limits.max_pulses is None]
 
 
 def _parse_value(text: str, where: str) -> Any:
@@ -219,6 +221,10 @@ def make_policy(spec: str) -> Policy:
     """Build a registered policy from 'NAME' or 'NAME:key=value,...'; unknown keys are an error."""
     name, kwargs = parse_policy_spec(spec)
     info = policy_info(name)
+    missing = [k for k in info.required if k not in kwargs]
+    if missing:
+        raise DeintError(f"policy {name!r} needs {', '.join(f'{k}=...' for k in missing)}: write "
+                         f"{name}:{','.join(f'{k}=VALUE' for k in info.required)}")
     factory = info.load()
     params = inspect.signature(factory).parameters
     if not any(p.kind is p.VAR_KEYWORD for p in params.values()):

@@ -105,10 +105,10 @@ def test_metadata_is_checked():
     assert policies.policy_info("tree").limits.max_pulses == 20 and policies.policy_info("tdc").modes == ("blind",)
 
 
-def test_default_set_leaves_out_adapters_and_pulse_limited_policies():
+def test_default_set_leaves_out_policies_needing_a_parameter_and_pulse_limited_ones():
     names = default_policies()
     assert "tdc" not in names and "tree" not in names and {"genie", "ppo", "fdp", "random"} <= set(names)
-    assert names == [p.name for p in list_policies() if p.name not in ("tdc", "tree")]
+    assert names == [p.name for p in list_policies() if p.name not in ("agent", "tdc", "tree")]
 
 
 def test_modes_are_checked_once_from_the_registry():
@@ -143,3 +143,14 @@ def test_spec_values_parse():
     assert parse_policy_spec("random:seed=9223372036854775807")[1] == {"seed": 2**63 - 1}
     assert parse_policy_spec("x:a=-2,b=1e-3,c=true,d=none,e=word") == ("x", dict(a=-2, b=1e-3, c=True, d=None,
                                                                                  e="word"))
+
+
+def test_required_parameters_are_named_or_refused_and_keep_a_policy_out_of_the_defaults():
+    from deint_env.policies import default_policies, policy_info
+
+    assert policy_info("agent").required == ("checkpoint",) and policy_info("tdc").required == ("model",)
+    for name, needed in (("agent", "checkpoint"), ("tdc", "model")):
+        with pytest.raises(DeintError, match=f"policy '{name}' needs {needed}=...: write {name}:{needed}=VALUE"):
+            make_policy(name)
+        assert name not in default_policies()
+    assert {"dagger", "ppo", "mht", "fdp"} <= set(default_policies())

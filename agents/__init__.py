@@ -10,7 +10,7 @@ from deint_env.policies import PolicyInfo
 POLICIES = (
     PolicyInfo("agent", "agents.policy:AgentPolicy", kind="learned", extra="rl", required=("checkpoint",),
                description="a learned agent from a deint checkpoint file (agent:checkpoint=PATH.safetensors)"),
-    PolicyInfo("dagger", "agents.policy:dagger", kind="learned", extra="rl",
+    PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),
     PolicyInfo("ppo", "agents.policy:ppo", kind="learned", modes=("anchored",), extra="rl",

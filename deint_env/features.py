@@ -178,7 +178,8 @@ class TrackFeatures:
                     self.amp_mean[r, :nl] = p.amplitude
                     self.amp_scale[r, :nl] = np.maximum(p.amplitude_std, 1e-12)
             self.has_amp[r] = bool(has_amp)
-            self.scalars[r] = (p.spurious_rate, p.missing_prob, p.jitter_std)
+            # a rate the priors leave unknown (NaN) is fed as 0, as agents were trained on stated rates
+            self.scalars[r] = (np.nan_to_num(p.spurious_rate), np.nan_to_num(p.missing_prob), p.jitter_std)
         rows = np.asarray(rows, np.int64)
         self.period[rows] = self.prior_period[rows]
         self.count[rows] = 0

@@ -202,7 +202,9 @@ class HistogramPolicy(BlindWindowPolicy):
         pr = self.priors
         return SearchParams(sigma=sigma, pri_min=pri_min, pri_max=pri_max, min_pulses=self.min_pulses,
                             min_fill=self.min_fill, max_miss=self.max_miss,
-                            missing_prob=pr.missing_prob, spurious_rate=pr.spurious_rate)
+                            # rates the priors leave unknown (NaN): re-associate as the genie does, with none
+                            missing_prob=float(np.nan_to_num(pr.missing_prob)),
+                            spurious_rate=float(np.nan_to_num(pr.spurious_rate)))
 
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
         """Deinterleave by PRI; with attached descriptors (frequency, pulse width, angle of arrival),

@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections import deque
 from typing import Any, Callable
 
 import numpy as np
 
+from baselines.windowed import MAX_WINDOW, WindowedPolicy
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
-
-MAX_WINDOW = 10_001  # the env's largest lag is 10000
 
 
 def load_model(spec: str) -> Any:
@@ -130,7 +128,7 @@ def to_blind_labels(ids: np.ndarray, n_labels: int, noise_label: int | None = No
     return out
 
 
-class TDCDeinterleaver:
+class TDCDeinterleaver(WindowedPolicy):
     """A TDC `Deinterleaver` model run as a blind-mode policy (registered as ``tdc``).
 
     A TDC model labels whole trains, so the policy buffers pulses and labels them in consecutive
@@ -161,8 +159,7 @@ class TDCDeinterleaver:
         self.model = load_model(model) if isinstance(model, str) else model
         if not callable(self.model):
             raise ValueError("model must be callable (a TDC Deinterleaver)")
-        self.window = window
-        self.lag = window - 1
+        super().__init__(window)
         self.batched = batched
         self.overflow = overflow
         self.noise_label = noise_label_of(self.model, noise_label)
@@ -178,37 +175,18 @@ class TDCDeinterleaver:
         n = info.get("n_pulses")
         if self._data is not None and n is not None and self._data.shape[0] != n:
             raise DeintError(f"attached data has {self._data.shape[0]} rows for an episode of {n} pulses")
-        self._rows: list[Any] = []
-        self._ready: deque[int] = deque()
-        self._seen = 0
-        self._step = 0
+        self._start()
 
-    def _flush(self) -> None:
-        if not self._rows:
-            return
-        block = np.asarray(self._rows, dtype=np.float32)
+    def _label_rows(self, rows: list[Any]) -> list[int]:
+        block = np.asarray(rows, dtype=np.float32)
         ids, self.batched = _predict(self.model, block, self.batched)  # the convention found is kept
-        self._ready.extend(to_blind_labels(ids, self.n_labels, self.noise_label, self.overflow).tolist())
-        self._rows = []
+        return to_blind_labels(ids, self.n_labels, self.noise_label, self.overflow).tolist()
 
-    def act(self, obs: dict[str, Any]) -> int:
-        if int(obs["valid"]):
-            k = self._seen
-            if self._data is not None:
-                self._rows.append(self._data[k])
-            else:
-                toa = float(obs["toa"][0])
-                self._rows.append((toa, float(obs["amplitude"][0])) if self._amp else (toa,))
-            self._seen += 1
-            if len(self._rows) == self.window:
-                self._flush()
-        else:
-            self._flush()
-        due = self._step - self.lag
-        self._step += 1
-        if due < 0:
-            return 0  # before the first decision: the env ignores it
-        return self._ready.popleft()
+    def _row(self, obs: dict[str, Any]) -> Any:
+        if self._data is not None:
+            return self._data[self._seen]
+        toa = float(obs["toa"][0])
+        return (toa, float(obs["amplitude"][0])) if self._amp else (toa,)
 
 
 def from_deinterleaver(model: Any, window: int = 1000, **kwargs: Any) -> TDCDeinterleaver:

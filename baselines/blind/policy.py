@@ -24,10 +24,10 @@ from baselines.blind.descriptors import standardised
 from baselines.blind.detectors import CDIF, SDIF, PRITransform
 from baselines.blind.pipeline import Deinterleaving, Detector, SearchParams, deinterleave
 from baselines.blind.pri_models import line_fit
+from baselines.windowed import MAX_WINDOW, WindowedPolicy
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.modulation import PRIModel
-from baselines.tdc_adapter import MAX_WINDOW
 
 
 def _check_window(window: object) -> int:
@@ -37,12 +37,11 @@ def _check_window(window: object) -> int:
     return window
 
 
-class BlindWindowPolicy:
-    """Base: buffering, emission at lag window - 1, labels carried across windows, estimates."""
+class BlindWindowPolicy(WindowedPolicy):
+    """Base: windows of pulses (`WindowedPolicy`), labels carried across windows, estimates."""
 
     def __init__(self, window: int = 1000):
-        self.window = _check_window(window)
-        self.lag = self.window - 1
+        super().__init__(_check_window(window))
         self._features: dict[str, np.ndarray] | None = None
         self._sigma_used = 0.0  # the TOA noise the last window was deinterleaved with
 
@@ -76,12 +75,7 @@ class BlindWindowPolicy:
                 raise DeintError(f"attached descriptor {bad[0]} has {self._features[bad[0]].size} values for an "
                                  f"episode of {n} pulses")
         self._amp = bool(info.get("has_amplitude", False))
-        self._toa: list[float] = []
-        self._amps: list[float] = []
-        self._seen = 0
-        self._ready: list[int] = []
-        self._next = 0
-        self._step = 0
+        self._start()
         self._last_used = np.full(self.n_labels, -1, dtype=np.int64)  # window number of each label's last use
         self._tracks: list[tuple[PRIModel, float] | None] = [None] * self.n_labels  # (model, last pulse)
         self._phase = np.full(self.n_labels, np.nan)
@@ -89,23 +83,9 @@ class BlindWindowPolicy:
         self.trains_found = 0  # trains found in the last window (the whole episode when it fits one)
         self.trains_per_window: list[int] = []
 
-    def act(self, obs: dict[str, Any]) -> int:
-        if int(obs["valid"]):
-            self._toa.append(float(obs["toa"][0]))
-            self._seen += 1
-            if self._amp:
-                self._amps.append(float(obs["amplitude"][0]))
-            if len(self._toa) == self.window:
-                self._flush()
-        else:
-            self._flush()
-        due = self._step - self.lag
-        self._step += 1
-        if due < 0:
-            return 0  # before the first decision: the env ignores it
-        label = self._ready[self._next]
-        self._next += 1
-        return label
+    def _row(self, obs: dict[str, Any]) -> tuple[float, ...]:
+        toa = float(obs["toa"][0])
+        return (toa, float(obs["amplitude"][0])) if self._amp else (toa,)
 
     def estimates(self) -> dict[str, np.ndarray]:
         """Per label: the mean PRI of its last train and the arrival of its first pulse (NaN if unused)."""
@@ -117,14 +97,11 @@ class BlindWindowPolicy:
         return [m[0] if m is not None else None for m in self._tracks]
 
     # ---- windows -----------------------------------------------------------------------------------
-    def _flush(self) -> None:
-        if not self._toa:
-            return
-        toa = np.asarray(self._toa)
-        amp = np.asarray(self._amps) if self._amp else None
-        result = self.label_window(toa, amp)
-        self._ready.extend(self._to_labels(toa, result).tolist())
-        self._toa, self._amps = [], []
+    def _label_rows(self, rows: list[tuple[float, ...]]) -> list[int]:
+        block = np.asarray(rows, dtype=np.float64)
+        toa = block[:, 0]
+        amp = block[:, 1] if self._amp else None
+        return self._to_labels(toa, self.label_window(toa, amp)).tolist()
 
     def _to_labels(self, toa: np.ndarray, result: Deinterleaving) -> np.ndarray:
         w = self._windows

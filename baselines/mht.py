@@ -530,7 +530,8 @@ class MHT:
         self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
         self.cur.blk[0] = self.prior
         self.size = 1
-        self.scratch = Scratch.empty(cap * (2 * n + 1), n, max(self.look, self.look_start))
+        # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
+        self.scratch = Scratch.empty(cap * (3 * n + 1), n, max(self.look, self.look_start))
         rng = np.random.default_rng(0x5EED)
         self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
         # the key of "no pulse yet": every source's entry for last = -1 (index mask)

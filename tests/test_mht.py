@@ -141,3 +141,21 @@ def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
+
+
+def test_mht_stays_in_bounds_on_a_long_pt_episode(tmp_path):
+    """Regression: with restarts, a parent has up to 3 candidates per source plus spurious; the scratch
+    arrays once held 2 per source and numba wrote past them (a heap corruption that killed the worker
+    on paper-v0/mk94-pt-missing-three, seed 1000009).  Replayed here with numba's bounds checks on."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("from deint_env import make_policy, simulate\nfrom deint_env.suites import find_entry\n"
+            "from deint_env.runner import play\n"
+            "ep = simulate(find_entry('paper-v0/mk94-pt-missing-three').spec, 1000009)\n"
+            "print(play(make_policy('mht'), ep).metrics['accuracy'])\n")
+    env = {**os.environ, "NUMBA_BOUNDSCHECK": "1", "NUMBA_CACHE_DIR": str(tmp_path)}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert 0.0 <= float(done.stdout.split()[-1]) <= 1.0

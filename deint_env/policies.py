@@ -265,11 +265,14 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
 
 
 def spec_version(spec: str, policy: Policy | None = None) -> int | str:
-    """What results of `spec` are keyed on: the built policy's own `version` when it has one (a learned
-    agent: its checkpoint's content hash, so retraining to the same path never reuses old results),
-    else the registry's `version`."""
+    """What results of `spec` are keyed on: a learned agent's own `version` (its checkpoint's content
+    hash, so retraining to the same path never reuses old results), else the registry's `version`.
+    Only a learned policy is built for it (when `policy` is not given)."""
+    info = policy_info(parse_policy_spec(spec)[0])
+    if info.kind != "learned":
+        return info.version
     own = getattr(policy if policy is not None else make_policy(spec), "version", None)
-    return own if own is not None else policy_info(parse_policy_spec(spec)[0]).version
+    return own if own is not None else info.version
 
 
 def is_oracle(spec: str) -> bool:

@@ -131,8 +131,9 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
 
     with results_lock(folder / RESULTS):
         records = read_records(folder / RESULTS) if records is None else records
-        records = without_superseded(records)
-        board, profiles = aggregate(records, scope, reps=reps)
+        current = current_versions(records)
+        records = without_superseded(records, current)
+        board, profiles = aggregate(records, scope, reps=reps, current=current)
         files = {RESULTS: results_text(records)}
         files.update(render.render_all(board))
         files.update(plots.render_all(board, profiles))
@@ -191,10 +192,10 @@ def current_versions(records: list[EpisodeRecord]) -> dict[str, int | str | None
     return out
 
 
-def without_superseded(records: list[EpisodeRecord]) -> list[EpisodeRecord]:
-    """Drop the stale records (another version of their policy) whose episode has been replayed at the
-    current version; a stale record not yet replayed stays, and is counted as stale."""
-    current = current_versions(records)
+def without_superseded(records: list[EpisodeRecord],
+                       current: dict[str, int | str | None]) -> list[EpisodeRecord]:
+    """Drop the stale records (another version of their policy than `current_versions`) whose episode
+    has been replayed at the current version; a stale record not yet replayed stays, counted as stale."""
 
     def episode(r: EpisodeRecord) -> tuple:
         return r.policy, r.scenario, r.scenario_hash, r.seed
@@ -203,10 +204,12 @@ def without_superseded(records: list[EpisodeRecord]) -> list[EpisodeRecord]:
     return [r for r in records if current[r.policy] in (None, r.policy_version) or episode(r) not in replayed]
 
 
-def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
-              seed: int = 0) -> tuple[dict[str, Any], dict[str, tuple[np.ndarray, ...]]]:
+def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000, seed: int = 0,
+              current: dict[str, int | str | None] | None = None,
+              ) -> tuple[dict[str, Any], dict[str, tuple[np.ndarray, ...]]]:
     """The leaderboard (JSON-ready, floats unrounded) and each entry's performance profile.  Records of
-    another version of their policy than the registry's are stale: counted, never aggregated."""
+    another version of their policy than the current one (`current`, default `current_versions`) are
+    stale: counted, never aggregated."""
     from deint_env import __version__
 
     suite = load_suite(scope.suite)
@@ -214,7 +217,7 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000,
     expected = {(e.name, e.spec.content_hash, s) for e, s in scope.episodes()}
     by_policy: dict[str, dict[tuple, EpisodeRecord]] = {}
     stale: dict[str, int] = {}
-    current = current_versions(records)
+    current = current_versions(records) if current is None else current
     for r in records:
         key = (r.scenario, r.scenario_hash, r.seed)
         if key not in expected:

@@ -46,9 +46,11 @@ so a source that stops, starts late or misses pulses is picked up where it is.
 
 from __future__ import annotations
 
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba import njit
 
 from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
 from deint_env.episode import Priors
@@ -164,102 +166,275 @@ class FDPCore:
         return self.surv[int(np.argmin(self.r))] if self.r is not None else self.surv[0]
 
 
-class GatedLevel(NamedTuple):
-    """One level of a gated continuation tree: its nodes (M, N, fields), the cost of each node's pulse,
-    the cumulative look-ahead cost from level 1 down to it, its source, and its level-0 and level-1
-    ancestors (level-0 ancestor = the survivor i, level-1 ancestor = the pair (i, j) as i * N + j)."""
-
-    nodes: np.ndarray
-    cost: np.ndarray
-    total: np.ndarray
-    src: np.ndarray
-    root: np.ndarray
-    pair: np.ndarray
+# ---- the compiled core ---------------------------------------------------------------------------
+# Model scalars for the compiled functions, packed in one float array (one argument for numba).
+_JV, _ALPHA, _DRIFT, _IVAR, _GATE2, _LL, _SEQ = range(7)
 
 
-class GatedFDPCore(FDPCore):
-    """FDP whose tree keeps only gated continuations: a node's source must predict the pulse within
-    `gate` innovation deviations (e^2 <= gate^2 S), as `mht` gates its candidates.  Everything else
-    is the recursion of `FDPCore`, with the same arithmetic in the same order, so where the gate
-    removes nothing the labels are the same bit for bit (tested); the tree holds a few nodes per
-    survivor instead of N^(Delta+1), and a pulse costs O(gated continuations), not O(N^(Delta+1)).
-    A node none of whose sources gates the pulse keeps its nearest source (FDP must assign every
-    pulse), so the tree never empties."""
+@njit(cache=True, nogil=True)
+def _predict(t, tau, ptt, ptx, pxx, par):
+    """`kalman.predict` ((2.8) and II-C-2's noises) on one block, the same operations in the same order."""
+    a = par[_ALPHA]
+    if a == 1.0:
+        drift = par[_DRIFT]
+        return t, tau + t, ptt + drift if drift else ptt, ptt + ptx, ptt + 2.0 * ptx + pxx + par[_IVAR]
+    return a * t, tau + t, a * a * ptt + par[_DRIFT], a * (ptt + ptx), ptt + 2.0 * ptx + pxx + par[_IVAR]
+
+
+@njit(cache=True, nogil=True)
+def _emit(node, i, y, par, no_predict):
+    """Source i of `node` (N, fields) emits y: predict, innovate, update (2.15) in place, as
+    `kalman.update` writes it.  Returns the pulse's cost (MK94 (2.18) e^2, or e^2 / S + log S)."""
+    t, tau, ptt, ptx, pxx = node[i, PERIOD], node[i, TAU], node[i, P_TT], node[i, P_TX], node[i, P_XX]
+    if not no_predict:
+        t, tau, ptt, ptx, pxx = _predict(t, tau, ptt, ptx, pxx, par)
+    e = y - tau
+    s = pxx + par[_JV]
+    inv_s = 1.0 / s
+    g = e * inv_s
+    r_inv_s = par[_JV] * inv_s
+    node[i, PERIOD] = t + ptx * g
+    node[i, TAU] = tau + pxx * g
+    node[i, P_TT] = ptt - ptx * ptx * inv_s
+    node[i, P_TX] = ptx * r_inv_s
+    node[i, P_XX] = pxx * r_inv_s
+    node[i, COUNT] += 1.0
+    if par[_LL] != 0.0:
+        return e * e / s + math.log(s)
+    return e * e
+
+
+@njit(cache=True, nogil=True)
+def _children(node, y, par, cand, lev):
+    """The sources of `node` that may emit y (into cand[lev]): those within the gate (e^2 <= g^2 S),
+    or, when none is, the nearest (FDP labels every pulse, so a node always has a child).  Returns
+    how many."""
+    n = node.shape[0]
+    m = 0
+    best, near = np.inf, 0
+    for j in range(n):
+        t, tau, ptt, ptx, pxx = _predict(node[j, PERIOD], node[j, TAU], node[j, P_TT], node[j, P_TX],
+                                         node[j, P_XX], par)
+        e = y - tau
+        z = e * e / (pxx + par[_JV])
+        if z <= par[_GATE2]:
+            cand[lev, m] = j
+            m += 1
+        if z < best:
+            best, near = z, j
+    if m == 0:
+        cand[lev, 0] = near
+        m = 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _leaves(node, y, par, base, lev, c, cost1, i, j1):
+    """The deepest level below `node`: each gated child's cost (`_emit`'s, without the update no
+    later level needs) added to the path's `base`, the least into c[i, j1] (and cost1 at level 1)."""
+    n = node.shape[0]
+    best, near, near_cost = np.inf, 0, 0.0
+    found = False
+    for j in range(n):
+        t, tau, ptt, ptx, pxx = _predict(node[j, PERIOD], node[j, TAU], node[j, P_TT], node[j, P_TX],
+                                         node[j, P_XX], par)
+        e = y - tau
+        s = pxx + par[_JV]
+        z = e * e / s
+        cost = e * e / s + math.log(s) if par[_LL] != 0.0 else e * e
+        if z < best:
+            best, near, near_cost = z, j, cost
+        if z <= par[_GATE2]:
+            found = True
+            _leaf(c, cost1, i, j1, j, lev, base, cost)
+    if not found:
+        _leaf(c, cost1, i, j1, near, lev, base, near_cost)
+
+
+@njit(cache=True, nogil=True)
+def _leaf(c, cost1, i, j1, j, lev, base, cost):
+    if lev == 1:
+        cost1[i, j] = cost
+        j1 = j
+        total = cost
+    else:
+        total = base + cost
+    if total < c[i, j1]:
+        c[i, j1] = total
+
+
+@njit(cache=True, nogil=True)
+def _lookahead(surv, r, started, ys, no_predict, par, level0, cost0, c, cost1):
+    """Step 1 of MK94 III over the window ys = y_k .. y_{k+D}: level 0 (survivor i's source i emits y_k,
+    into level0[i], its cost cost0[i]), and c[i, j] = the least look-ahead cost J (3.1) of the
+    continuations with s_k = i, s_{k+1} = j (cost1[i, j]: the cost of y_{k+1} there).  The tree is
+    walked depth first on one node, each level's firing undone on the way back, with the costs summed
+    from level 1 down in the order `FDPCore.lookahead_costs` sums them.  Only live survivors (finite
+    cost; all at the first pulse) are expanded, and only gated children (`_children`); with an
+    infinite gate this is the full tree.  Unreached entries stay inf."""
+    n = surv.shape[0]
+    d = ys.size - 1
+    c[:, :] = np.inf
+    cost1[:, :] = np.inf
+    cost0[:] = np.inf
+    cand = np.empty((d + 1, n), np.int64)
+    count = np.zeros(d + 1, np.int64)
+    ptr = np.zeros(d + 1, np.int64)
+    fired = np.zeros(d + 1, np.int64)
+    total = np.zeros(d + 1)
+    saved = np.empty((d + 1, 6))
+    node = np.empty((n, 6))
+    live = np.zeros(n, np.bool_)
+    if started:
+        for i in range(n):
+            live[i] = r[i] < np.inf
+    elif par[_GATE2] < np.inf:  # the first pulse: the survivors are identical, so gate y_k on one
+        for q in range(_children(surv[0], ys[0], par, cand, 0)):
+            live[cand[0, q]] = True
+    else:
+        live[:] = True
+    for i in range(n):
+        if not live[i]:
+            continue
+        for q in range(n):
+            for f in range(6):
+                level0[i, q, f] = surv[i, q, f]
+        cost0[i] = _emit(level0[i], i, ys[0], par, no_predict)
+        if d == 0:
+            continue
+        if d == 1:
+            _leaves(level0[i], ys[1], par, 0.0, 1, c, cost1, i, 0)
+            continue
+        for q in range(n):
+            for f in range(6):
+                node[q, f] = level0[i, q, f]
+        lev = 1
+        count[1] = _children(node, ys[1], par, cand, 1)
+        ptr[1] = 0
+        while lev > 0:
+            if ptr[lev] == count[lev]:  # this level is done: undo its parent's firing
+                lev -= 1
+                if lev > 0:
+                    for f in range(6):
+                        node[fired[lev], f] = saved[lev, f]
+                continue
+            j = cand[lev, ptr[lev]]
+            ptr[lev] += 1
+            fired[lev] = j
+            for f in range(6):
+                saved[lev, f] = node[j, f]
+            cost = _emit(node, j, ys[lev], par, False)
+            total[lev] = cost if lev == 1 else total[lev - 1] + cost
+            if lev == 1:
+                cost1[i, j] = cost
+            if lev + 1 == d:  # the next level is the deepest: costs only
+                _leaves(node, ys[d], par, total[lev], d, c, cost1, i, fired[1])
+                for f in range(6):
+                    node[j, f] = saved[lev, f]
+            else:
+                lev += 1
+                count[lev] = _children(node, ys[lev], par, cand, lev)
+                ptr[lev] = 0
+
+
+@njit(cache=True, nogil=True)
+def _commit(surv, r, level0, c, cost1, par):
+    """Steps 2-3: phi^j = argmin_i (c_ij + r_k^i) (3.2), the new costs, survivor j = the KF of
+    survivor phi^j after y_k (3.3).  Returns the label of pulse k: s_k of argmin_ij (r_k^i + c_ij).
+    Ties go to the lowest index, as numpy's argmin."""
+    n = surv.shape[0]
+    best = np.empty(n)
+    phi = np.empty(n, np.int64)
+    for j in range(n):
+        b, p = r[0] + c[0, j], 0
+        for i in range(1, n):
+            v = r[i] + c[i, j]
+            if v < b:
+                b, p = v, i
+        best[j], phi[j] = b, p
+    top = 0
+    for j in range(1, n):
+        if best[j] < best[top]:
+            top = j
+    label = phi[top]
+    new_r = np.empty(n)
+    for j in range(n):
+        new_r[j] = best[j] if par[_SEQ] == 0.0 else r[phi[j]] + cost1[phi[j], j]
+    for j in range(n):
+        if new_r[j] < np.inf:
+            surv[j] = level0[phi[j]]
+    r[:] = new_r
+    return label
+
+
+class Lookahead(NamedTuple):
+    """Step 1's results at pulse k: level 0 (N survivors' states after y_k, and its cost), c_ij (3.1)
+    and the cost of y_{k+1} under each (i, j).  Entries of pruned or dead survivors are inf."""
+
+    level0: np.ndarray
+    cost0: np.ndarray
+    c: np.ndarray
+    cost1: np.ndarray
+
+
+class CompiledFDPCore(FDPCore):
+    """The FDP recursion compiled (`_lookahead`, `_commit`), the same arithmetic in the same order as
+    `FDPCore` (the batched-numpy form), so the labels are the same bit for bit; `gate` (in innovation
+    deviations, inf: the full tree) keeps only continuations whose source predicts the pulse within
+    it, as `mht` gates its candidates, so a pulse costs O(gated continuations), not O(N^(Delta+1)).
+    The tree is rebuilt at every pulse (depth first, no storage), which costs about what `reuse` saves."""
 
     def __init__(self, priors: Priors, accumulate: str, likelihood: bool, init: str, gate: float):
         super().__init__(priors, accumulate, False, likelihood, init)
-        self.gate2 = gate * gate
+        m = self.model
+        self.par = np.array([m.jitter_var, m.alpha, m.drift_var, m.interval_var, gate * gate, float(likelihood),
+                             float(accumulate == "sequence")])
+        self.r = np.zeros(self.n)
+        self.started = False
+        self.work = self._empty()
 
-    def tree(self, ys: list[float]) -> list:
-        n, m = self.n, self.model
-        first = self.r is None and self.first_no_predict
-        # level 0: survivor i fires source i at y_k, kept when source i gates y_k
-        nodes = self.surv.copy()
-        b = _block(nodes[np.arange(n), np.arange(n)][:, None, :])
-        pred = b if first else predict(b, m)
-        e, s = innovation(pred, ys[0], m)
-        z = (e * e / s)[:, 0]
-        keep = np.flatnonzero(z <= self.gate2)
-        if keep.size == 0:  # no survivor's source gates y_k: the nearest one goes on
-            keep = np.array([int(np.argmin(z))])
-        lv0 = nodes[keep]
-        cost0 = _fire(lv0, keep, ys[0], m, self.likelihood, first)
-        levels = [GatedLevel(lv0, cost0, np.zeros(keep.size), keep, keep, keep)]
-        for lev, y in enumerate(ys[1:], start=1):
-            par = levels[-1]
-            b = _block(par.nodes)
-            e, s = innovation(predict(b, m), y, m)
-            z = e * e / s
-            rows, cols = np.nonzero(z <= self.gate2)  # (parent, source) pairs that gate y
-            lone = np.ones(z.shape[0], dtype=bool)
-            lone[rows] = False
-            if lone.any():  # a node none of whose sources gates y keeps its nearest one
-                extra = np.flatnonzero(lone)
-                rows, cols = np.r_[rows, extra], np.r_[cols, np.argmin(z[extra], axis=1)]
-            kids = par.nodes[rows]
-            cost = _fire(kids, cols, y, m, self.likelihood)
-            total = cost if lev == 1 else par.total[rows] + cost
-            pair = par.root[rows] * n + cols if lev == 1 else par.pair[rows]
-            levels.append(GatedLevel(kids, cost, total, cols, par.root[rows], pair))
-        return levels
-
-    def lookahead_costs(self, levels) -> np.ndarray:
-        if not isinstance(levels[0], GatedLevel):
-            return super().lookahead_costs(levels)
+    def _empty(self) -> Lookahead:
         n = self.n
-        leaf = levels[-1]
-        c = np.full(n * n, np.inf)
-        np.minimum.at(c, leaf.pair, leaf.total)
-        return c.reshape(n, n)
+        return Lookahead(np.empty_like(self.surv), np.empty(n), np.empty((n, n)), np.empty((n, n)))
 
-    def commit(self, levels, c: np.ndarray | None) -> int:
-        if not isinstance(levels[0], GatedLevel):
-            return super().commit(levels, c)
-        n = self.n
-        lv0 = levels[0]
-        cost0 = np.full(n, np.inf)
-        cost0[lv0.root] = lv0.cost
-        if self.r is None:
-            self.r = cost0.copy()  # the first pulse's own error starts the costs
+    def _no_predict(self) -> bool:
+        return not self.started and self.first_no_predict
+
+    def tree(self, ys: list[float]) -> Lookahead:
+        out = self._empty()
+        _lookahead(self.surv, self.r, self.started, np.asarray(ys, dtype=np.float64), self._no_predict(), self.par,
+                   *out)
+        return out
+
+    def lookahead_costs(self, levels: Lookahead) -> np.ndarray:
+        return levels.c
+
+    def commit(self, levels: Lookahead, c: np.ndarray | None) -> int:
+        if not self.started:
+            self.r[:] = levels.cost0  # the first pulse's own error starts the costs
+            self.started = True
         if c is None:
             return int(np.argmin(self.r))
-        cost1 = np.full(n * n, np.inf)
-        cost1[levels[1].pair] = levels[1].cost
-        cost1 = cost1.reshape(n, n)
-        with np.errstate(invalid="ignore"):
-            tot = self.r[:, None] + c
-        phi = np.argmin(tot, axis=0)  # (3.2)
-        cols = np.arange(n)
-        best = tot[phi, cols]
-        label = int(phi[int(np.argmin(best))])
-        self.r = best if self.accumulate == "lookahead" else self.r[phi] + cost1[phi, cols]
-        # (3.3): survivor j continues the KF of survivor phi^j after y_k (where that node exists)
-        node0 = np.full(n, -1)
-        node0[lv0.root] = np.arange(lv0.root.size)
-        ok = node0[phi] >= 0
-        self.surv[ok] = lv0.nodes[node0[phi[ok]]]
-        self.r[~ok] = np.inf
-        return label
+        return int(_commit(self.surv, self.r, levels.level0, c, levels.cost1, self.par))
+
+    def decide(self, ys: np.ndarray) -> int:
+        """tree + commit in one compiled call (the plain FDP's whole step)."""
+        label = _decide(self.surv, self.r, self.started, ys, self._no_predict(), self.par, *self.work)
+        self.started = True
+        return int(label)
+
+    def best_state(self) -> np.ndarray:
+        return self.surv[int(np.argmin(self.r))] if self.started else self.surv[0]
+
+
+@njit(cache=True, nogil=True)
+def _decide(surv, r, started, ys, no_predict, par, level0, cost0, c, cost1):
+    _lookahead(surv, r, started, ys, no_predict, par, level0, cost0, c, cost1)
+    if not started:
+        r[:] = cost0
+    if ys.size == 1:
+        return np.argmin(r)
+    return _commit(surv, r, level0, c, cost1, par)
 
 
 class FDP:
@@ -277,17 +452,21 @@ class FDP:
 
     def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
-                 dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None):
+                 dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None,
+                 engine: str = "compiled"):
         if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
             raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
         for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
-                                     ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood"))):
+                                     ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood")),
+                                     ("engine", engine, ("compiled", "numpy"))):
             if value not in allowed:
                 raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")
         if not gate > 0:
             raise ValueError(f"gate={gate!r} must be > 0")
         if tree_gate is not None and not tree_gate > 0:
             raise ValueError(f"tree_gate={tree_gate!r} must be > 0 (or None: the full tree)")
+        if tree_gate is not None and engine == "numpy":
+            raise ValueError("tree_gate needs engine=compiled (the numpy engine is the full tree)")
         self.tree_gate = None if tree_gate is None else float(tree_gate)
         if not spurious_penalty >= 0:
             raise ValueError(f"spurious_penalty={spurious_penalty!r} must be >= 0")
@@ -295,20 +474,28 @@ class FDP:
         self.lookahead, self.accumulate, self.init, self.cost = lookahead, accumulate, init, cost
         self.missing, self.supernumerary, self.dropout, self.gate = bool(missing), bool(supernumerary), \
             bool(dropout), float(gate)
+        self.engine = engine
         # the VI-A tests change the observation stream, which a kept tree cannot follow
         self.reuse = bool(reuse) and not (missing or supernumerary or dropout)
+        self.plain = not (missing or supernumerary or dropout)
         self.lag = lookahead + (1 if supernumerary else 0)
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        if self.tree_gate is not None:
-            self.core = GatedFDPCore(priors, self.accumulate, self.cost == "likelihood", self.init, self.tree_gate)
-        elif float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
+        likelihood = self.cost == "likelihood"
+        gate = math.inf if self.tree_gate is None else self.tree_gate
+        if gate == math.inf and float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
             raise ValueError(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
-                             f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6")
+                             f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6 "
+                             f"(tree_gate keeps only the gated ones)")
+        if self.engine == "numpy":
+            self.core = FDPCore(priors, self.accumulate, self.reuse, likelihood, self.init)
         else:
-            self.core = FDPCore(priors, self.accumulate, self.reuse, self.cost == "likelihood", self.init)
+            self.core = CompiledFDPCore(priors, self.accumulate, likelihood, self.init, gate)
+        self.fast = self.plain and self.engine == "compiled"
         self.spurious = priors.n_labels
         self.ys: list[float] = []
+        self.toa = np.zeros(1024)  # the received TOAs (the compiled plain path)
+        self.n_seen = 0
         self.stream: list[int] = []  # received index of each internal pulse (a merged pulse twice)
         self.pos = 0  # next internal pulse to decide
         self.labels: dict[int, int] = {}
@@ -316,6 +503,8 @@ class FDP:
         self.steps = 0
 
     def act(self, obs: dict[str, Any]) -> int:
+        if self.fast:
+            return self._act_plain(obs)
         if int(obs["valid"]):
             self.ys.append(float(obs["toa"][0]))
             self.stream.append(len(self.ys) - 1)
@@ -325,6 +514,20 @@ class FDP:
             self._decide()
         self.steps += 1
         return self.labels.pop(self.steps - 1 - self.lag, 0)  # step t labels pulse t - lag
+
+    def _act_plain(self, obs: dict[str, Any]) -> int:
+        """Plain FDP (no VI options) on the compiled core: step t decides pulse t - Delta over
+        y_{t-Delta} .. y_t (fewer once the stream has ended), one compiled call."""
+        if int(obs["valid"]):
+            if self.n_seen == self.toa.size:
+                self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
+            self.toa[self.n_seen] = obs["toa"][0]
+            self.n_seen += 1
+        k = self.steps - self.lag
+        self.steps += 1
+        if not 0 <= k < self.n_seen:
+            return 0
+        return self.core.decide(self.toa[k:min(k + self.lookahead + 1, self.n_seen)])
 
     def _ready(self) -> bool:
         """Enough look-ahead to decide the next internal pulse (all of it once the stream ended)."""

@@ -46,6 +46,7 @@ so a source that stops, starts late or misses pulses is picked up where it is.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, NamedTuple
 
@@ -437,6 +438,153 @@ def _decide(surv, r, started, ys, no_predict, par, level0, cost0, c, cost1):
     return _commit(surv, r, level0, c, cost1, par)
 
 
+# ---- robust start: look-ahead track initiation -----------------------------------------------------
+_START_GATE = 4.0  # a source's candidate first pulses: within this many deviations of its phase
+_START_BRANCH = 8  # pulses tried per arrival in a candidate's chain (the nearest in the gate)
+_START_MISS_FLOOR = 0.05  # a chain's miss probability floor: a missed arrival costs -log(0.05) = 3
+
+
+@njit(cache=True, nogil=True)
+def _chain(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jv, ivar, log_rho, miss_cost, taken, path):
+    """The least cost of a source's next `look` arrivals after it took pulse k (the filtered block t,
+    tau, ptt, ptx, pxx): a small tree search over the buffered pulses not `taken` by another source,
+    each arrival either a hit on one of the `_START_BRANCH` pulses nearest its prediction within the
+    gate, costing 0.5 (e^2/S + log 2 pi S) + log rho (the pulse's NLL under the source against the
+    density rho of all pulses), or a miss (`miss_cost`); arrivals beyond the buffer cost 0.  The best
+    chain's pulses (-1: a miss) go to `path`.  Depth first on an explicit stack (rows: t, tau, ptt,
+    ptx, pxx, steps, total, depth, pulse), branch and bound."""
+    newest = toa[n_seen - 1]
+    st = np.empty((look * (_START_BRANCH + 1) + 2, 9))
+    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
+    st[0, 5], st[0, 6], st[0, 7], st[0, 8] = 1.0, 0.0, 0.0, k
+    trail = np.full(look + 1, -1, np.int64)  # the pulses of the chain being searched, by depth
+    path[:] = -1
+    least = min(0.5 * math.log(2.0 * math.pi * jv) + log_rho, 0.0)  # no arrival costs less (S >= R)
+    top, best = 1, np.inf
+    while top > 0:
+        top -= 1
+        t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
+        steps, total, depth = st[top, 5], st[top, 6], int(st[top, 7])
+        trail[depth] = int(st[top, 8])
+        # (2.8) `steps` times (the arrivals missed since the last hit, and this one)
+        p_tx = ptx + steps * ptt
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * ivar
+        s = p_xx + jv
+        pred = tau + steps * t
+        half = math.sqrt(gate2 * s)
+        if depth >= look or pred - half > newest:
+            if total < best:
+                best = total
+                path[:] = -1
+                path[:depth] = trail[1:depth + 1]
+            continue
+        if total + (look - depth) * least >= best:
+            continue
+        st[top, 5], st[top, 6], st[top, 7], st[top, 8] = steps + 1.0, total + miss_cost, depth + 1.0, -1.0
+        top += 1  # the miss
+        c = np.searchsorted(toa[:n_seen], pred)
+        left, right = c - 1, max(c, k + 1)
+        tried = 0
+        while tried < _START_BRANCH:  # the nearest free hits within the gate, outwards from pred
+            if right < n_seen and (left <= k or toa[right] - pred < pred - toa[left]):
+                j = right
+                right += 1
+            elif left > k:
+                j = left
+                left -= 1
+            else:
+                break
+            e = toa[j] - pred
+            if e * e > gate2 * s:
+                break
+            if taken[j]:
+                continue
+            tried += 1
+            g, r_s = e / s, jv / s
+            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+            st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
+            st[top, 6] = total + 0.5 * (e * e / s + math.log(2.0 * math.pi * s)) + log_rho
+            st[top, 7], st[top, 8] = depth + 1.0, j
+            top += 1
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, taken):
+    """Mark the pulses of a source's chosen chain `taken`: its first pulse k, the best chain's pulses
+    (`path`), then, with the KF it has built, the nearest free pulse within the gate of each later
+    arrival in the buffer (ending after 3 misses in a row: the track is lost, claim no more)."""
+    taken[k] = True
+    steps, misses, q = 1.0, 0, 0
+    while True:
+        p_tx = ptx + steps * ptt
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * ivar
+        s = p_xx + jv
+        pred = tau + steps * t
+        if pred - math.sqrt(gate2 * s) > toa[n_seen - 1] or misses >= 3:
+            return
+        j = -1
+        if q < path.size:
+            j = path[q]
+            q += 1
+        else:  # beyond the searched chain: the nearest free pulse in the gate
+            c = np.searchsorted(toa[:n_seen], pred)
+            for cand in (c - 1, c):
+                if k < cand < n_seen and not taken[cand] and (toa[cand] - pred) ** 2 <= gate2 * s:
+                    if j < 0 or abs(toa[cand] - pred) < abs(toa[j] - pred):
+                        j = cand
+        if j < 0:
+            steps += 1.0
+            misses += 1
+            continue
+        e = toa[j] - pred
+        g, r_s = e / s, jv / s
+        t, tau, ptt, ptx, pxx = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
+        taken[j] = True
+        steps, misses, k = 1.0, 0, j
+
+
+def initiate(toa: np.ndarray, priors: Priors, model: DLMModel, gate: float, look: int) -> Priors:
+    """Robust start (issue 10's track initiation): each source's first pulse chosen by look-ahead, so
+    that in a dense scene, where many first arrivals fall within each other's phase gates, no source
+    starts on a neighbour's pulse.  Sources are taken in order of increasing prior period (the most
+    arrivals to judge by first).  A source's candidates are the free pulses within `gate` deviations
+    of its prior phase; a candidate costs its NLL against the prior plus the best chain of the
+    source's next `look` arrivals after it (`_chain`); the least wins unless every arrival missed
+    costs less (then the source keeps its prior), and the winner's chain, followed through the
+    buffer, is `taken` (`_claim`), so a later source neither starts on nor is judged by pulses that
+    an earlier one explains (a long period is otherwise matched by a harmonic of a short one).
+    Returns the priors with the chosen phases known to the jitter: the FDP then starts every source
+    on its own pulse.  Sources with an unknown phase keep their priors."""
+    b = prior_block(priors)
+    jv, ivar, gate2 = model.jitter_var, model.interval_var, gate * gate
+    stated = priors.missing_prob if np.isfinite(priors.missing_prob) else 0.0
+    miss = -math.log(max(_START_MISS_FLOOR, stated))
+    log_rho = math.log(float(np.sum(1.0 / priors.period)))
+    taken = np.zeros(toa.size, np.bool_)
+    path, best_path = np.empty(look, np.int64), np.empty(look, np.int64)
+    phase, phase_std = priors.phase.copy(), priors.phase_std.copy()
+    for i in np.argsort(priors.period, kind="stable"):
+        if not np.isfinite(priors.phase[i]):
+            continue
+        pred = predict(b.take(slice(i, i + 1)), model)
+        e, s = innovation(pred, toa, model)
+        best, pick, blk_pick = (look + 1) * miss, -1, None
+        for k in np.flatnonzero((e * e <= gate2 * s) & ~taken):
+            blk = update(pred, e[k:k + 1], s[:1], model)
+            cost = 0.5 * (e[k] ** 2 / s[0] + math.log(2.0 * math.pi * s[0])) + log_rho + _chain(
+                toa, toa.size, int(k), blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], look,
+                gate2, jv, ivar, log_rho, miss, taken, path)
+            if cost < best:
+                best, pick, blk_pick = cost, int(k), blk
+                best_path[:] = path
+        if pick >= 0:
+            _claim(toa, toa.size, pick, blk_pick.period[0], blk_pick.tau[0], blk_pick.p_tt[0], blk_pick.p_tx[0],
+                   blk_pick.p_xx[0], best_path, gate2, jv, ivar, taken)
+            phase[i], phase_std[i] = toa[pick], math.sqrt(jv)
+    return dataclasses.replace(priors, phase=phase, phase_std=phase_std)
+
+
 class FDP:
     """MK94 forward dynamic programming with look-ahead Delta (policies `fdp`, `fdp-ll`).
 
@@ -453,12 +601,12 @@ class FDP:
     def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
                  dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None,
-                 engine: str = "compiled"):
+                 engine: str = "compiled", start: str = "prior", start_look: int = 6, start_lag: int = 1024):
         if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
             raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
         for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
                                      ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood")),
-                                     ("engine", engine, ("compiled", "numpy"))):
+                                     ("engine", engine, ("compiled", "numpy")), ("start", start, ("prior", "lookahead"))):
             if value not in allowed:
                 raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")
         if not gate > 0:
@@ -475,32 +623,57 @@ class FDP:
         self.missing, self.supernumerary, self.dropout, self.gate = bool(missing), bool(supernumerary), \
             bool(dropout), float(gate)
         self.engine = engine
+        for name, v, lo in (("start_look", start_look, 1), ("start_lag", start_lag, lookahead + 1)):
+            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
+                raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
+        self.start, self.start_look = start, start_look
         # the VI-A tests change the observation stream, which a kept tree cannot follow
         self.reuse = bool(reuse) and not (missing or supernumerary or dropout)
         self.plain = not (missing or supernumerary or dropout)
         self.lag = lookahead + (1 if supernumerary else 0)
+        if start == "lookahead":  # the initiation waits for its look-ahead (at most start_lag pulses)
+            self.lag = max(self.lag, start_lag)
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
-        likelihood = self.cost == "likelihood"
-        gate = math.inf if self.tree_gate is None else self.tree_gate
-        if gate == math.inf and float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
+        if self.tree_gate is None and float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
             raise ValueError(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
                              f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6 "
                              f"(tree_gate keeps only the gated ones)")
-        if self.engine == "numpy":
-            self.core = FDPCore(priors, self.accumulate, self.reuse, likelihood, self.init)
-        else:
-            self.core = CompiledFDPCore(priors, self.accumulate, likelihood, self.init, gate)
+        self.priors = priors
+        self.core = self._core(priors)
+        self.initiated = self.start == "prior"
+        # robust start: the pulses its look-ahead needs (`start_look` arrivals of every source after
+        # its phase gate)
+        t, s = priors.period, priors.period_std
+        tail = np.where(np.isfinite(priors.phase), priors.phase + _START_GATE * priors.phase_std, -np.inf)
+        self.start_horizon = float(np.max(tail + (self.start_look + 0.5) * (t + _START_GATE * s), initial=-np.inf))
         self.fast = self.plain and self.engine == "compiled"
         self.spurious = priors.n_labels
         self.ys: list[float] = []
-        self.toa = np.zeros(1024)  # the received TOAs (the compiled plain path)
-        self.n_seen = 0
+        self.toa = np.zeros(1024)  # the received TOAs and the decided labels (the compiled plain path)
+        self.decisions = np.zeros(1024, np.int64)
+        self.n_seen = self.decided = 0
         self.stream: list[int] = []  # received index of each internal pulse (a merged pulse twice)
         self.pos = 0  # next internal pulse to decide
         self.labels: dict[int, int] = {}
         self.ended = False
         self.steps = 0
+
+    def _core(self, priors: Priors) -> FDPCore:
+        likelihood = self.cost == "likelihood"
+        if self.engine == "numpy":
+            return FDPCore(priors, self.accumulate, self.reuse, likelihood, self.init)
+        gate = math.inf if self.tree_gate is None else self.tree_gate
+        return CompiledFDPCore(priors, self.accumulate, likelihood, self.init, gate)
+
+    def _initiate(self, toa: np.ndarray, newest_step: bool) -> None:
+        """Robust start, once its look-ahead is buffered (or the lag or the stream's end forces it):
+        the FDP restarts from the initiated priors (no pulse has been decided yet)."""
+        if self.initiated or not (self.ended or newest_step or (toa.size and toa[-1] >= self.start_horizon)):
+            return
+        if toa.size:
+            self.core = self._core(initiate(toa, self.priors, self.core.model, _START_GATE, self.start_look))
+        self.initiated = True
 
     def act(self, obs: dict[str, Any]) -> int:
         if self.fast:
@@ -510,29 +683,39 @@ class FDP:
             self.stream.append(len(self.ys) - 1)
         else:
             self.ended = True
+        self._initiate(np.asarray(self.ys), self.steps >= self.lag)
         while self._ready():
             self._decide()
         self.steps += 1
         return self.labels.pop(self.steps - 1 - self.lag, 0)  # step t labels pulse t - lag
 
     def _act_plain(self, obs: dict[str, Any]) -> int:
-        """Plain FDP (no VI options) on the compiled core: step t decides pulse t - Delta over
-        y_{t-Delta} .. y_t (fewer once the stream has ended), one compiled call."""
+        """Plain FDP (no VI options) on the compiled core: pulse k is decided over y_k .. y_{k+Delta}
+        (fewer once the stream has ended) as soon as they are in, one compiled call a pulse."""
         if int(obs["valid"]):
             if self.n_seen == self.toa.size:
                 self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
+                self.decisions = np.concatenate([self.decisions, np.zeros(self.decisions.size, np.int64)])
             self.toa[self.n_seen] = obs["toa"][0]
             self.n_seen += 1
-        k = self.steps - self.lag
+        else:
+            self.ended = True
+        if not self.initiated:
+            self._initiate(self.toa[:self.n_seen], self.steps >= self.lag)
+        if self.initiated:
+            d, n = self.lookahead, self.n_seen
+            while self.decided < n and (self.ended or self.decided + d < n):
+                k = self.decided
+                self.decisions[k] = self.core.decide(self.toa[k:min(k + d + 1, n)])
+                self.decided = k + 1
+        t = self.steps - self.lag  # step t labels pulse t - lag
         self.steps += 1
-        if not 0 <= k < self.n_seen:
-            return 0
-        return self.core.decide(self.toa[k:min(k + self.lookahead + 1, self.n_seen)])
+        return int(self.decisions[t]) if 0 <= t < self.decided else 0
 
     def _ready(self) -> bool:
         """Enough look-ahead to decide the next internal pulse (all of it once the stream ended)."""
         need = self.lookahead + (1 if self.supernumerary else 0)
-        return self.pos < len(self.stream) and (self.ended or self.pos + need < len(self.stream))
+        return self.initiated and self.pos < len(self.stream) and (self.ended or self.pos + need < len(self.stream))
 
     def _window(self, start: int, length: int) -> list[float]:
         return [self.ys[j] for j in self.stream[start:start + length]]

@@ -24,11 +24,39 @@ tau = phi - T, docs/design.md section 8).  `init="mk94"` is the literal (2.3): t
 pulse predicted at the phase of its source and every other source's first pulse at phi + T.
 
 Decisions are fixed-lag: pulse k is labelled when y_{k+Delta} arrives, with s_k of the best
-(i, j) = argmin (r_k^i + c_ij).  The tree of continuations is computed level by level over all
-hypotheses at once; `reuse=True` (default) keeps the subtrees of the chosen survivors, which at pulse
-k+1 are exactly (bit for bit) the top Delta levels of the new tree, and computes only the new deepest
-level: N^(Delta+1) block updates a pulse.  `reuse=False` rebuilds the tree at every pulse (the same
-labels; kept to check that and to time the published form).
+(i, j) = argmin (r_k^i + c_ij).
+
+Two engines compute the same recursion with the same arithmetic in the same order, so their labels
+are identical bit for bit (tested on every option, and on 313 core-v0/paper-v0 runs against the
+fdp published before the compiled core).  `engine="compiled"` (default): numba functions walk the
+tree depth first on one node per level (each level's update undone on the way back), rebuilding it
+at every pulse; the deepest level needs costs only.  A plain fdp step is one compiled call; the VI
+options drive the same functions through `CompiledFDPCore.tree`/`commit`.  Its interpreted form
+(`.py_func`) gives the same labels (tested).  numba is a core dependency (the blind deinterleavers
+and `mht` need it too).  `engine="numpy"`: the batched-numpy form, the tree computed level by level
+over all hypotheses at once; `reuse=True` keeps the subtrees of the chosen survivors (at pulse k+1
+exactly the top Delta levels of the new tree) and computes only the new deepest level,
+`reuse=False` rebuilds it.  It is kept as the reference the compiled engine is tested and
+benchmarked against (`benchmarks/bench_fdp.py`).
+
+Gating (`tree_gate=g`, compiled engine; default None: the full tree, as published).  A continuation
+is kept only when its source predicts the pulse within g innovation deviations, e^2 <= g^2 S with
+S from the KF (2.15), as `mht` gates its candidates; a node none of whose sources gates the pulse
+keeps its nearest one (FDP labels every pulse), and only live survivors (finite cost) are
+expanded.  Where the gate removes no continuation that matters, the labels are the full tree's
+(tested); a pulse then costs O(gated continuations) instead of N^(Delta+1) block updates.  With
+`dropout` the sources coast through missed arrivals before the tree is built, so the gate is the
+k-step one.  Gating is not the default: the published MK94 start-ups (e.g. Fig. 4/5's prior T2 = 22
+for a true 17 with Sigma_{1|0} = I) put early pulses far outside any narrow gate.
+
+Robust start (`start="lookahead"`, issue 10; default "prior").  In a dense scene (16 sources, phase
+priors 5 % of a period) many first arrivals fall within each other's phase gates, and an FDP started
+from the priors' phases puts some source on a neighbour's pulse and never recovers: measured on
+scale-10000p-16s, accuracy 0.06-0.10 (chance); started from the true first pulses, 0.93-0.94 (genie
+0.944).  `initiate` picks each source's first pulse by look-ahead (a chain search over its next
+`start_look` arrivals) and hands the FDP priors with those phases known to the jitter.  It waits for
+that look-ahead to be buffered, so the policy's lag is `start_lag` pulses (labels come that much
+later; the decisions are the FDP's).  Sources with an unknown phase keep their priors.
 
 Section VI-A (`missing=True`): J-bar is also evaluated on {y_k, y_k, y_{k+1}, .., y_{k+Delta-1}}, i.e.
 y_k received for two sources at once (coincident pulses merged); when min c-bar < min c the pulse is
@@ -592,21 +620,25 @@ class FDP:
     `init` ("phase" or the literal "mk94"), `cost` ("raw" squared errors (2.18), or "likelihood":
     e^2/S + log S, which weighs each error by its predicted spread), `missing` / `supernumerary` /
     `spurious_penalty` (section VI-A), `dropout` and `gate` (section VI-C-3: coasting through missed
-    arrivals), `reuse` (keep the tree; same labels), `tree_gate` (None: the full tree; a number g: only
-    continuations whose source predicts the pulse within g innovation deviations, `GatedFDPCore`:
-    what makes 16-32 sources affordable; the same labels where the gate removes nothing).
-    The lag is Delta, or Delta + 1 with `supernumerary`.
+    arrivals), `engine` ("compiled", or the batched-numpy reference "numpy"; the same labels), `reuse`
+    (numpy engine: keep the tree; the same labels), `tree_gate` (None: the full tree; a number g: only
+    continuations whose source predicts the pulse within g innovation deviations, what makes 16
+    sources affordable), `start` ("prior", or "lookahead": the robust start), `start_look` (arrivals
+    the start looks ahead), `start_lag` (pulses the start may wait: the lag with start="lookahead").
+    The lag is Delta, or Delta + 1 with `supernumerary`, or `start_lag` with the robust start.
+    For scale-v0's dense scenes: `fdp:tree_gate=4,start=lookahead`.
     """
 
     def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
                  dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None,
-                 engine: str = "compiled", start: str = "prior", start_look: int = 6, start_lag: int = 1024):
+                 engine: str = "compiled", start: str = "prior", start_look: int = 6, start_lag: int = 2048):
         if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
             raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
         for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
                                      ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood")),
-                                     ("engine", engine, ("compiled", "numpy")), ("start", start, ("prior", "lookahead"))):
+                                     ("engine", engine, ("compiled", "numpy")),
+                                     ("start", start, ("prior", "lookahead"))):
             if value not in allowed:
                 raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")
         if not gate > 0:

@@ -448,9 +448,9 @@ class CompiledFDPCore(FDPCore):
 
     def decide(self, ys: np.ndarray) -> int:
         """tree + commit in one compiled call (the plain FDP's whole step)."""
-        label = _decide(self.surv, self.r, self.started, ys, self._no_predict(), self.par, *self.work)
+        started = self.started
         self.started = True
-        return int(label)
+        return _decide(self.surv, self.r, started, ys, not started and self.first_no_predict, self.par, *self.work)
 
     def best_state(self) -> np.ndarray:
         return self.surv[int(np.argmin(self.r))] if self.started else self.surv[0]
@@ -735,10 +735,10 @@ class FDP:
         if not self.initiated:
             self._initiate(self.toa[:self.n_seen], self.steps >= self.lag)
         if self.initiated:
-            d, n = self.lookahead, self.n_seen
+            d, n, decide = self.lookahead, self.n_seen, self.core.decide
             while self.decided < n and (self.ended or self.decided + d < n):
                 k = self.decided
-                self.decisions[k] = self.core.decide(self.toa[k:min(k + d + 1, n)])
+                self.decisions[k] = decide(self.toa[k:min(k + d + 1, n)])
                 self.decided = k + 1
         t = self.steps - self.lag  # step t labels pulse t - lag
         self.steps += 1

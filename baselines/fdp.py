@@ -538,11 +538,11 @@ def _chain(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jv, ivar, log_rho
 
 
 @njit(cache=True, nogil=True)
-def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, taken):
-    """Mark the pulses of a source's chosen chain `taken`: its first pulse k, the best chain's pulses
+def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, owner, src):
+    """Give source `src` (in `owner`) the pulses of its chosen chain: its first pulse k, the best chain's pulses
     (`path`), then, with the KF it has built, the nearest free pulse within the gate of each later
     arrival in the buffer (ending after 3 misses in a row: the track is lost, claim no more)."""
-    taken[k] = True
+    owner[k] = src
     steps, misses, q = 1.0, 0, 0
     while True:
         p_tx = ptx + steps * ptt
@@ -558,7 +558,7 @@ def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, taken):
         else:  # beyond the searched chain: the nearest free pulse in the gate
             c = np.searchsorted(toa[:n_seen], pred)
             for cand in (c - 1, c):
-                if k < cand < n_seen and not taken[cand] and (toa[cand] - pred) ** 2 <= gate2 * s:
+                if k < cand < n_seen and owner[cand] < 0 and (toa[cand] - pred) ** 2 <= gate2 * s:
                     if j < 0 or abs(toa[cand] - pred) < abs(toa[j] - pred):
                         j = cand
         if j < 0:
@@ -568,7 +568,7 @@ def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, taken):
         e = toa[j] - pred
         g, r_s = e / s, jv / s
         t, tau, ptt, ptx, pxx = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
-        taken[j] = True
+        owner[j] = src
         steps, misses, k = 1.0, 0, j
 
 
@@ -580,8 +580,11 @@ def initiate(toa: np.ndarray, priors: Priors, model: DLMModel, gate: float, look
     of its prior phase; a candidate costs its NLL against the prior plus the best chain of the
     source's next `look` arrivals after it (`_chain`); the least wins unless every arrival missed
     costs less (then the source keeps its prior), and the winner's chain, followed through the
-    buffer, is `taken` (`_claim`), so a later source neither starts on nor is judged by pulses that
-    an earlier one explains (a long period is otherwise matched by a harmonic of a short one).
+    buffer, is the source's (`_claim`), so a later source neither starts on nor is judged by pulses
+    that an earlier one explains (a long period is otherwise matched by a harmonic of a short one).
+    Then two sources each of whose first pulses lies in the other's phase gate (close periods and
+    phases) swap them when that costs less for the pair (their chains judged on the pulses no other
+    source claimed): the greedy order alone gives the first of them its pick.
     Returns the priors with the chosen phases known to the jitter: the FDP then starts every source
     on its own pulse.  Sources with an unknown phase keep their priors."""
     b = prior_block(priors)
@@ -589,27 +592,51 @@ def initiate(toa: np.ndarray, priors: Priors, model: DLMModel, gate: float, look
     stated = priors.missing_prob if np.isfinite(priors.missing_prob) else 0.0
     miss = -math.log(max(_START_MISS_FLOOR, stated))
     log_rho = math.log(float(np.sum(1.0 / priors.period)))
-    taken = np.zeros(toa.size, np.bool_)
-    path, best_path = np.empty(look, np.int64), np.empty(look, np.int64)
-    phase, phase_std = priors.phase.copy(), priors.phase_std.copy()
-    for i in np.argsort(priors.period, kind="stable"):
-        if not np.isfinite(priors.phase[i]):
-            continue
-        pred = predict(b.take(slice(i, i + 1)), model)
-        e, s = innovation(pred, toa, model)
-        best, pick, blk_pick = (look + 1) * miss, -1, None
-        for k in np.flatnonzero((e * e <= gate2 * s) & ~taken):
-            blk = update(pred, e[k:k + 1], s[:1], model)
-            cost = 0.5 * (e[k] ** 2 / s[0] + math.log(2.0 * math.pi * s[0])) + log_rho + _chain(
-                toa, toa.size, int(k), blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], look,
-                gate2, jv, ivar, log_rho, miss, taken, path)
+    owner = np.full(toa.size, -1, np.int64)  # the source whose chain holds each pulse
+    preds = {i: predict(b.take(slice(i, i + 1)), model) for i in range(priors.n_labels) if np.isfinite(priors.phase[i])}
+    gated = {i: (lambda e, s: e * e <= gate2 * s)(*innovation(pred, toa, model)) for i, pred in preds.items()}
+
+    def candidate(i: int, k: int, free: np.ndarray) -> tuple[float, Block, np.ndarray]:
+        """Source i starting on pulse k: its cost, its block after k, its best chain's pulses."""
+        e, s = innovation(preds[i], toa[k:k + 1], model)
+        blk = update(preds[i], e, s, model)
+        path = np.empty(look, np.int64)
+        cost = 0.5 * (e[0] ** 2 / s[0] + math.log(2.0 * math.pi * s[0])) + log_rho + _chain(
+            toa, toa.size, k, blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], look, gate2, jv,
+            ivar, log_rho, miss, ~free, path)
+        return cost, blk, path
+
+    def claim(i: int, k: int, blk: Block, path: np.ndarray) -> None:
+        _claim(toa, toa.size, k, blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], path, gate2, jv,
+               ivar, owner, i)
+
+    order = [int(i) for i in np.argsort(priors.period, kind="stable") if int(i) in preds]
+    pick: dict[int, int] = {}
+    for i in order:
+        free = owner < 0
+        best, chosen = (look + 1) * miss, None
+        for k in np.flatnonzero(gated[i] & free):
+            cost, blk, path = candidate(i, int(k), free)
             if cost < best:
-                best, pick, blk_pick = cost, int(k), blk
-                best_path[:] = path
-        if pick >= 0:
-            _claim(toa, toa.size, pick, blk_pick.period[0], blk_pick.tau[0], blk_pick.p_tt[0], blk_pick.p_tx[0],
-                   blk_pick.p_xx[0], best_path, gate2, jv, ivar, taken)
-            phase[i], phase_std[i] = toa[pick], math.sqrt(jv)
+                best, chosen = cost, (int(k), blk, path)
+        if chosen is not None:
+            pick[i] = chosen[0]
+            claim(i, *chosen)
+    for a, i in enumerate(order):  # pairwise swaps of first pulses
+        for j in order[a + 1:]:
+            if i not in pick or j not in pick or not (gated[i][pick[j]] and gated[j][pick[i]]):
+                continue
+            free = (owner < 0) | (owner == i) | (owner == j)
+            keep_i, keep_j = candidate(i, pick[i], free), candidate(j, pick[j], free)
+            swap_i, swap_j = candidate(i, pick[j], free), candidate(j, pick[i], free)
+            if swap_i[0] + swap_j[0] < keep_i[0] + keep_j[0]:
+                owner[(owner == i) | (owner == j)] = -1
+                pick[i], pick[j] = pick[j], pick[i]
+                claim(i, pick[i], *swap_i[1:])
+                claim(j, pick[j], *swap_j[1:])
+    phase, phase_std = priors.phase.copy(), priors.phase_std.copy()
+    for i, k in pick.items():
+        phase[i], phase_std[i] = toa[k], math.sqrt(jv)
     return dataclasses.replace(priors, phase=phase, phase_std=phase_std)
 
 

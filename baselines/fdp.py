@@ -411,7 +411,8 @@ class CompiledFDPCore(FDPCore):
     `FDPCore` (the batched-numpy form), so the labels are the same bit for bit; `gate` (in innovation
     deviations, inf: the full tree) keeps only continuations whose source predicts the pulse within
     it, as `mht` gates its candidates, so a pulse costs O(gated continuations), not O(N^(Delta+1)).
-    The tree is rebuilt at every pulse (depth first, no storage), which costs about what `reuse` saves."""
+    The tree is rebuilt at every pulse, depth first without being stored (keeping it, as the numpy
+    form's `reuse` does, would save only its upper levels, a fraction of the N^(Delta+1) leaves)."""
 
     def __init__(self, priors: Priors, accumulate: str, likelihood: bool, init: str, gate: float):
         super().__init__(priors, accumulate, False, likelihood, init)

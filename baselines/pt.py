@@ -48,28 +48,44 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from deint_env.receiver import is_spurious
-from baselines.kalman import (Block, DLMModel, innovation, overdue, phase_estimate, predict, prior_block,
+from baselines.kalman import (Block, DLMModel, initial_block, overdue, phase_estimate, predict, prior_block,
                               update)
 from deint_env.episode import Priors
 from deint_env.policies import policy_rng
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depend on the chunking
-_MAX_COAST = 64  # missed arrivals skipped per pulse at most
-_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown spurious fraction
+_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
+_Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
+_MAX_COAST = 64  # missed arrivals coasted through per pulse at most
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
 TEACHERS = ("prior", "posterior", "decision")
 
 
+class Candidates(NamedTuple):
+    """The hypotheses for one pulse, 2N of them: rows 0..N-1 "source j's next arrival", rows N..2N-1
+    "source j's nearest arrival after `steps` - 1 misses" (-inf score when that is the next one, or
+    when misses are not considered).  pred: the k-step predictions (2.8), e and s their innovations
+    (2.15); miss: the log prior of the misses; score: the log posterior up to a constant."""
+
+    source: np.ndarray
+    steps: np.ndarray
+    pred: Block
+    e: np.ndarray
+    s: np.ndarray
+    miss: np.ndarray
+    score: np.ndarray
+
+
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
-    (the MAP decision teaches: `dokf`); `label`, `coast`, `gate`, `reset_after`: see the module doc.
+    (the MAP decision teaches: `dokf`); `label`, `coast`, `reset_after`, `rates`: see the module doc.
     `seed`: the policy's own seed (default: the runner's policy_seed)."""
 
     lag = 0
@@ -93,6 +109,7 @@ class ProbabilisticTeacher:
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         self.n = priors.n_labels
+        self.priors = priors
         self.model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
         self.blocks = prior_block(priors)  # arrays of N: the filtered (T, tau) of every source
         self.arrivals = np.zeros(self.n, dtype=np.int64)  # pulses taken + arrivals coasted through, per source
@@ -101,74 +118,148 @@ class ProbabilisticTeacher:
         self.log_pi = np.log(pi)
         self._cum_pi = np.cumsum(pi / pi.sum()).tolist()
         self._cum_pi[-1] = math.inf  # u < 1 always lands on a source
-        r = priors.spurious_rate
-        self._estimate = self.rates == "estimate" or math.isnan(r)
-        self._lam = _PRIOR_MEAN if self._estimate else r / (1.0 + r)
-        self._pulses = self._called = 0  # pulses seen, called spurious (for an estimated rate)
+        estimate = self.rates == "estimate"
+        q, r = (math.nan, math.nan) if estimate else (priors.missing_prob, priors.spurious_rate)
+        self._q_known, self._r_known = q, r
+        # misses are hypotheses when coasting, or when the channel may miss pulses at all
+        self._misses = self.coast or not q == 0.0
+        self._q = _PRIOR_MEAN if math.isnan(q) else q
+        self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
+        self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
+        self._started = False
         self._rng = policy_rng(info, self.seed)
         self._u: list[float] = []
         self._posterior = self.teacher != "prior" or self.label == "map"
+
+    def _start(self, y: float) -> None:
+        """An unknown phase: the source's first arrival is uniform over one period from the first pulse
+        received (mean y + T/2, variance T^2/12), not anywhere on the line, so a late first pulse is
+        read as missed arrivals and the start does not depend on where the file's time origin is."""
+        self._started = True
+        p = self.priors
+        unknown = ~np.isfinite(p.phase)
+        if unknown.any():
+            t = np.asarray(p.period, dtype=np.float64)
+            fresh = initial_block(t, y + 0.5 * t, p.period_std, t / math.sqrt(12.0))
+            self.blocks.put(unknown, fresh.take(unknown))
 
     def _uniform(self) -> float:
         if not self._u:
             self._u = self._rng.random(_CHUNK).tolist()[::-1]
         return self._u.pop()
 
-    def posterior(self, y: float) -> tuple[np.ndarray, Block, np.ndarray, np.ndarray]:
-        """(4.1)-(4.3): log f(X_{k+1} = e_j | y_{k+1}, Y_k, X_k) up to a constant, with every source's
-        prediction, its innovation e_j and variance Omega_j."""
+    def _rates(self) -> None:
+        """The Beta-posterior means of the unknown rates from the decided labels so far: q = (misses + 1)
+        / (arrivals + 20) and lambda = (spurious + 1) / (pulses + 20) (prior mean 0.05, worth 20)."""
+        if math.isnan(self._q_known):
+            self._q = (self._missed + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._hits + self._missed + _PRIOR_WEIGHT)
+        if math.isnan(self._r_known):
+            self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
+
+    def _coast(self, y: float) -> None:
+        """VI-C-3: skip the missed arrivals of every source overdue at y (`coast`), resetting a source
+        coasted through more than `reset_after` arrivals in a row (a detected dropout)."""
         b, m = self.blocks, self.model
-        pred = predict(b, m)
-        if self.coast:  # VI-C-3: skip the missed arrivals of every source overdue at y
-            for _ in range(_MAX_COAST):
-                late = overdue(pred, y, m, self.gate)
-                if not late.any():
-                    break
-                b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
-                self.missed += late
-                self.arrivals += late
-                if self.reset_after is not None:  # a dropout: open the arrival up to a whole period
-                    lost = self.missed > self.reset_after
-                    b = b._replace(p_xx=np.where(lost, np.maximum(b.p_xx, b.period ** 2 / 12.0), b.p_xx))
-                pred = predict(b, m)
-            self.blocks = b
-        e, s = innovation(pred, y, m)
-        return self.log_pi - 0.5 * (np.log(s) + e * e / s), pred, e, s
+        for _ in range(_MAX_COAST):
+            pred = predict(b, m)
+            late = overdue(pred, y, m, self.gate)
+            if not late.any():
+                break
+            b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
+            self.missed += late
+            self.arrivals += late
+            if self.reset_after is not None:
+                b = self._reset(b, self.missed > self.reset_after)
+        self.blocks = b
+
+    def _reset(self, b: Block, lost: np.ndarray, source: np.ndarray | slice = slice(None)) -> Block:
+        """MK94 VI-C-3's reset of a source lost in a dropout: its phase is unknown again (uniform over
+        one period: var tau = T^2/12, uncorrelated with T, so the error of its next pulse does not
+        bend the period), its period kept, or the prior's when it has left the prior by more than two
+        prior deviations (a track biased by wrongly taken pulses)."""
+        if not lost.any():
+            return b
+        prior_t, prior_tt = self.priors.period[source], self.priors.period_std[source] ** 2
+        astray = lost & ((b.period - prior_t) ** 2 > 4.0 * prior_tt)
+        t = np.where(astray, prior_t, b.period)
+        return Block(t, b.tau, np.where(astray, prior_tt, b.p_tt), np.where(lost, 0.0, b.p_tx),
+                     np.where(lost, t * t / 12.0, b.p_xx))
+
+    def candidates(self, y: float) -> Candidates:
+        """(4.1)-(4.3) with missed arrivals: for every source its next arrival and, when the channel
+        may miss pulses, its arrival nearest to y after m more misses (k = m + 1 steps of (2.8) in
+        closed form), scored log pi_j + log(1 - q) + m log q + log N(e; 0, S).  Coasting (`coast`)
+        first skips the arrivals that are plainly past (`_coast`); the nearest-arrival rows decide
+        the rest (a pulse less than `gate` deviations beyond the midpoint of two arrivals, or any
+        late pulse of a non-coasting teacher)."""
+        if self.coast:
+            self._coast(y)
+        b, m = self.blocks, self.model
+        near = np.maximum(1.0, np.floor((y - b.tau) / b.period + 0.5))
+        steps = np.concatenate([np.ones(self.n), near])
+        source = np.concatenate([np.arange(self.n), np.arange(self.n)])
+        bb = Block(*(np.concatenate([a, a]) for a in b))
+        # (2.8) `steps` times: tau + k T, cov(T, tau) + k var T, var tau + 2k cov + k^2 var T + k Q
+        pred = Block(bb.period, bb.tau + steps * bb.period, bb.p_tt, bb.p_tx + steps * bb.p_tt,
+                     bb.p_xx + 2.0 * steps * bb.p_tx + steps * steps * bb.p_tt + steps * m.interval_var)
+        missed = steps - 1.0
+        q = max(self._q, _Q_FLOOR) if self.coast else self._q
+        if self.reset_after is not None:  # a dropout, as in `_coast`
+            pred = self._reset(pred, missed + self.missed[source] > self.reset_after, source)
+        p_xx = pred.p_xx
+        e, s = y - pred.tau, p_xx + m.jitter_var
+        miss = np.full(2 * self.n, math.log1p(-q))
+        if self._misses and q > 0:
+            miss[self.n:] += missed[self.n:] * math.log(q)
+        else:
+            miss[self.n:] = -np.inf
+        miss[self.n:][near == 1.0] = -np.inf  # the next arrival is already a row
+        score = self.log_pi[source] + miss - 0.5 * (np.log(s) + e * e / s)
+        return Candidates(source, steps, pred, e, s, miss, score)
 
     def act(self, obs: dict[str, Any]) -> int:
         if not int(obs["valid"]):
             return 0
         y = float(obs["toa"][0])
+        if not self._started:
+            self._start(y)
         u = self._uniform() if self.teacher != "decision" else 0.0  # one draw per pulse: reproducible
         if not self._posterior:  # pt-prior, sampled labels: only the chosen block is touched
             j = bisect_right(self._cum_pi, u)
             b = self.blocks
             pred = predict(Block(float(b.period[j]), float(b.tau[j]), float(b.p_tt[j]), float(b.p_tx[j]),
                                  float(b.p_xx[j])), self.model)
-            e, s = innovation(pred, y, self.model)
-            b.put(j, update(pred, e, s, self.model))
+            b.put(j, update(pred, y - pred.tau, pred.p_xx + self.model.jitter_var, self.model))
             self.arrivals[j] += 1
             return j
-        logp, pred, e, s = self.posterior(y)
-        best = int(np.argmax(logp))
-        if self._estimate:
-            self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
-            self._pulses += 1
-        if self._lam > 0 and self.teacher != "prior" and is_spurious(
-                float(e[best]), float(s[best]), self._lam, float(pred.period[best]) ** 2 / 12.0):
-            self._called += 1
-            return self.n
+        c = self.candidates(y)
+        best = int(np.argmax(c.score))
+        self._rates()
+        self._pulses += 1
+        if self._lam > 0 and self.teacher != "prior":
+            # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
+            # (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)
+            pulse = (1.0 - self._lam) * math.exp(float(c.miss[best]))
+            lam = self._lam / (self._lam + pulse)
+            if is_spurious(float(c.e[best]), float(c.s[best]), lam, float(c.pred.period[best]) ** 2 / 12.0):
+                self._called += 1
+                return self.n
         if self.teacher == "prior":
-            j = bisect_right(self._cum_pi, u)
+            pick = int(np.flatnonzero(c.source == bisect_right(self._cum_pi, u))[0])
         elif self.teacher == "decision":
-            j = best
+            pick = best
         else:
-            cum = np.cumsum(np.exp(logp - logp[best]))
-            j = min(int(np.searchsorted(cum, u * cum[-1], side="right")), self.n - 1)
-        self.blocks.put(j, update(pred.take(j), e[j], s[j], self.model))  # (4.4)
-        self.arrivals[j] += 1
+            cum = np.cumsum(np.exp(c.score - c.score[best]))
+            pick = min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+        j, k = int(c.source[pick]), int(c.steps[pick])
+        self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))  # (4.4)
+        self.arrivals[j] += k
+        self._hits += 1
+        run = int(self.missed[j]) + k - 1  # the misses since the source's last pulse
+        if self.reset_after is None or run <= self.reset_after:  # a dropout is not a run of misses
+            self._missed += run
         self.missed[j] = 0
-        return best if self.label == "map" else j
+        return int(c.source[best]) if self.label == "map" else j
 
     def estimates(self) -> dict[str, np.ndarray]:
         return {"period": self.blocks.period.copy(), "phase": phase_estimate(self.blocks, self.arrivals)}

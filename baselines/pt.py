@@ -204,8 +204,10 @@ class ProbabilisticTeacher:
                      bb.p_xx + 2.0 * steps * bb.p_tx + steps * steps * bb.p_tt + steps * m.interval_var)
         missed = steps - 1.0
         q = max(self._q, _Q_FLOOR) if self.coast else self._q
-        if self.reset_after is not None:  # a dropout, as in `_coast`
-            pred = self._reset(pred, missed + self.missed[source] > self.reset_after, source)
+        if self.reset_after is not None:  # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
+            lost = missed + self.missed[source] > self.reset_after
+            pred = self._reset(pred, lost, source)
+            missed = np.where(lost, 0.0, missed)
         p_xx = pred.p_xx
         e, s = y - pred.tau, p_xx + m.jitter_var
         miss = np.full(2 * self.n, math.log1p(-q))

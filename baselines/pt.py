@@ -126,6 +126,9 @@ class ProbabilisticTeacher:
         self._q = _PRIOR_MEAN if math.isnan(q) else q
         self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
         self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
+        self.taken = np.zeros(self.n, dtype=np.int64)  # pulses taken, per source
+        self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
+        self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
         self._started = False
         self._rng = policy_rng(info, self.seed)
         self._u: list[float] = []
@@ -137,6 +140,9 @@ class ProbabilisticTeacher:
         read as missed arrivals and the start does not depend on where the file's time origin is."""
         self._started = True
         p = self.priors
+        # while unknown phases are being acquired (two longest periods), decisions are guesses, not
+        # evidence about the channel: counting them would feed every wrong start back into lambda
+        self._settled = y + 2.0 * float(np.max(p.period)) if self._guessed.any() else -math.inf
         unknown = ~np.isfinite(p.phase)
         if unknown.any():
             t = np.asarray(p.period, dtype=np.float64)
@@ -169,8 +175,14 @@ class ProbabilisticTeacher:
             self.missed += late
             self.arrivals += late
             if self.reset_after is not None:
-                b = self._reset(b, self.missed > self.reset_after)
+                b = self._reset(b, self._lost(self.missed, slice(None)))
         self.blocks = b
+
+    def _lost(self, run: np.ndarray, source: np.ndarray | slice) -> np.ndarray:
+        """A dropout: more than `reset_after` misses in a row; or a source of unknown phase that took one
+        pulse and missed its next arrival (that first pulse was most likely not its own)."""
+        young = self._guessed[source] & (self.taken[source] == 1)
+        return (run > self.reset_after) | (young & (run >= 1))
 
     def _reset(self, b: Block, lost: np.ndarray, source: np.ndarray | slice = slice(None)) -> Block:
         """MK94 VI-C-3's reset of a source lost in a dropout: its phase is unknown again (uniform over
@@ -205,7 +217,7 @@ class ProbabilisticTeacher:
         missed = steps - 1.0
         q = max(self._q, _Q_FLOOR) if self.coast else self._q
         if self.reset_after is not None:  # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
-            lost = missed + self.missed[source] > self.reset_after
+            lost = self._lost(missed + self.missed[source], source)
             pred = self._reset(pred, lost, source)
             missed = np.where(lost, 0.0, missed)
         p_xx = pred.p_xx
@@ -237,14 +249,15 @@ class ProbabilisticTeacher:
         c = self.candidates(y)
         best = int(np.argmax(c.score))
         self._rates()
-        self._pulses += 1
+        counted = y > self._settled
+        self._pulses += counted
         if self._lam > 0 and self.teacher != "prior":
             # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
             # (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)
             pulse = (1.0 - self._lam) * math.exp(float(c.miss[best]))
             lam = self._lam / (self._lam + pulse)
             if is_spurious(float(c.e[best]), float(c.s[best]), lam, float(c.pred.period[best]) ** 2 / 12.0):
-                self._called += 1
+                self._called += counted
                 return self.n
         if self.teacher == "prior":
             pick = int(np.flatnonzero(c.source == bisect_right(self._cum_pi, u))[0])
@@ -256,10 +269,12 @@ class ProbabilisticTeacher:
         j, k = int(c.source[pick]), int(c.steps[pick])
         self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))  # (4.4)
         self.arrivals[j] += k
-        self._hits += 1
+        self.taken[j] += 1
         run = int(self.missed[j]) + k - 1  # the misses since the source's last pulse
-        if self.reset_after is None or run <= self.reset_after:  # a dropout is not a run of misses
-            self._missed += run
+        if counted:
+            self._hits += 1
+            if self.reset_after is None or run <= self.reset_after:  # a dropout is not a run of misses
+                self._missed += run
         self.missed[j] = 0
         return int(c.source[best]) if self.label == "map" else j
 

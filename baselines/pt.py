@@ -63,6 +63,7 @@ _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depe
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
 _Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
+_AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
 TEACHERS = ("prior", "posterior", "decision")
@@ -90,7 +91,7 @@ class ProbabilisticTeacher:
 
     lag = 0
 
-    def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool = False,
+    def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
                  gate: float = 5.0, reset_after: int | None = None, rates: str = "priors"):
         if teacher not in TEACHERS:
             raise ValueError(f"teacher={teacher!r} must be one of {', '.join(TEACHERS)}")
@@ -105,7 +106,8 @@ class ProbabilisticTeacher:
         if rates not in RATES:
             raise ValueError(f"rates={rates!r} must be one of {', '.join(RATES)}")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
-        self.coast, self.gate, self.reset_after = bool(coast), float(gate), reset_after
+        self.gate = float(gate)
+        self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         self.n = priors.n_labels
@@ -121,8 +123,12 @@ class ProbabilisticTeacher:
         estimate = self.rates == "estimate"
         q, r = (math.nan, math.nan) if estimate else (priors.missing_prob, priors.spurious_rate)
         self._q_known, self._r_known = q, r
+        self.coast, self.reset_after = bool(self._coast_param), self._reset_param
+        if self._coast_param is None and not (q == 0.0 and r == 0.0):  # auto: VI-C-3's remedies off a clean channel
+            self.coast = True
+            self.reset_after = _AUTO_RESET if self._reset_param is None else self._reset_param
         # misses are hypotheses when coasting, or when the channel may miss pulses at all
-        self._misses = self.coast or not q == 0.0
+        self._misses = not q == 0.0
         self._q = _PRIOR_MEAN if math.isnan(q) else q
         self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
         self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
@@ -213,7 +219,7 @@ class ProbabilisticTeacher:
         bb = Block(*(np.concatenate([a, a]) for a in b))
         # (2.8) `steps` times: tau + k T, cov(T, tau) + k var T, var tau + 2k cov + k^2 var T + k Q
         pred = Block(bb.period, bb.tau + steps * bb.period, bb.p_tt, bb.p_tx + steps * bb.p_tt,
-                     bb.p_xx + 2.0 * steps * bb.p_tx + steps * steps * bb.p_tt + steps * m.interval_var)
+                     steps * steps * bb.p_tt + 2.0 * steps * bb.p_tx + bb.p_xx + steps * m.interval_var)
         missed = steps - 1.0
         q = max(self._q, _Q_FLOOR) if self.coast else self._q
         if self.reset_after is not None:  # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
@@ -292,7 +298,7 @@ class PTPrior(ProbabilisticTeacher):
 class PTPost(ProbabilisticTeacher):
     """`pt-post`: MK94 IV, the source drawn from the a-posteriori probabilities (4.1)-(4.3)."""
 
-    def __init__(self, label: str = "sample", seed: int | None = None, coast: bool = False, gate: float = 5.0,
+    def __init__(self, label: str = "sample", seed: int | None = None, coast: bool | None = None, gate: float = 5.0,
                  reset_after: int | None = None, rates: str = "priors"):
         super().__init__("posterior", label, seed, coast, gate, reset_after, rates)
 

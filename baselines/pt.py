@@ -70,10 +70,10 @@ TEACHERS = ("prior", "posterior", "decision")
 
 
 class Candidates(NamedTuple):
-    """The hypotheses for one pulse, 2N of them: rows 0..N-1 "source j's next arrival", rows N..2N-1
-    "source j's nearest arrival after `steps` - 1 misses" (-inf score when that is the next one, or
-    when misses are not considered).  pred: the k-step predictions (2.8), e and s their innovations
-    (2.15); miss: the log prior of the misses; score: the log posterior up to a constant."""
+    """The hypotheses for one pulse: rows 0..N-1 "source j's next arrival", then (when misses are
+    hypotheses) "source j's nearest arrival after `steps` - 1 misses" for every j whose nearest arrival
+    is not its next.  pred: the k-step predictions (2.8), e and s their innovations (2.15); miss: the
+    log prior of the arrival (detection and misses); score: the log posterior up to a constant."""
 
     source: np.ndarray
     steps: np.ndarray
@@ -116,6 +116,7 @@ class ProbabilisticTeacher:
         self.blocks = prior_block(priors)  # arrays of N: the filtered (T, tau) of every source
         self.arrivals = np.zeros(self.n, dtype=np.int64)  # pulses taken + arrivals coasted through, per source
         self.missed = np.zeros(self.n, dtype=np.int64)  # arrivals coasted through since the last update
+        self._sources, self._ones, self._zeros = np.arange(self.n), np.ones(self.n), np.zeros(self.n)
         pi = np.asarray(priors.source_prob, dtype=np.float64)
         self.log_pi = np.log(pi)
         self._cum_pi = np.cumsum(pi / pi.sum()).tolist()
@@ -134,6 +135,7 @@ class ProbabilisticTeacher:
         self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
         self.taken = np.zeros(self.n, dtype=np.int64)  # pulses taken, per source
         self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
+        self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
         self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
         self._started = False
         self._rng = policy_rng(info, self.seed)
@@ -163,9 +165,9 @@ class ProbabilisticTeacher:
     def _rates(self) -> None:
         """The Beta-posterior means of the unknown rates from the decided labels so far: q = (misses + 1)
         / (arrivals + 20) and lambda = (spurious + 1) / (pulses + 20) (prior mean 0.05, worth 20)."""
-        if math.isnan(self._q_known):
+        if self._q_known != self._q_known:  # NaN: unknown
             self._q = (self._missed + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._hits + self._missed + _PRIOR_WEIGHT)
-        if math.isnan(self._r_known):
+        if self._r_known != self._r_known:
             self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
 
     def _coast(self, y: float) -> None:
@@ -187,6 +189,8 @@ class ProbabilisticTeacher:
     def _lost(self, run: np.ndarray, source: np.ndarray | slice) -> np.ndarray:
         """A dropout: more than `reset_after` misses in a row; or a source of unknown phase that took one
         pulse and missed its next arrival (that first pulse was most likely not its own)."""
+        if not self._young:
+            return run > self.reset_after
         young = self._guessed[source] & (self.taken[source] == 1)
         return (run > self.reset_after) | (young & (run >= 1))
 
@@ -213,28 +217,32 @@ class ProbabilisticTeacher:
         if self.coast:
             self._coast(y)
         b, m = self.blocks, self.model
-        near = np.maximum(1.0, np.floor((y - b.tau) / b.period + 0.5))
-        steps = np.concatenate([np.ones(self.n), near])
-        source = np.concatenate([np.arange(self.n), np.arange(self.n)])
-        bb = Block(*(np.concatenate([a, a]) for a in b))
-        # (2.8) `steps` times: tau + k T, cov(T, tau) + k var T, var tau + 2k cov + k^2 var T + k Q
-        pred = Block(bb.period, bb.tau + steps * bb.period, bb.p_tt, bb.p_tx + steps * bb.p_tt,
-                     steps * steps * bb.p_tt + 2.0 * steps * bb.p_tx + bb.p_xx + steps * m.interval_var)
-        missed = steps - 1.0
         q = max(self._q, _Q_FLOOR) if self.coast else self._q
-        if self.reset_after is not None:  # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
-            lost = self._lost(missed + self.missed[source], source)
-            pred = self._reset(pred, lost, source)
-            missed = np.where(lost, 0.0, missed)
-        p_xx = pred.p_xx
-        e, s = y - pred.tau, p_xx + m.jitter_var
-        miss = np.full(2 * self.n, math.log1p(-q))
+        source, steps, more = self._sources, self._ones, None
         if self._misses and q > 0:
-            miss[self.n:] += missed[self.n:] * math.log(q)
-        else:
-            miss[self.n:] = -np.inf
-        miss[self.n:][near == 1.0] = -np.inf  # the next arrival is already a row
-        score = self.log_pi[source] + miss - 0.5 * (np.log(s) + e * e / s)
+            near = np.floor((y - b.tau) / b.period + 0.5)
+            more = np.flatnonzero(near > 1.0)
+        if more is not None and more.size:
+            source, steps = np.concatenate([source, more]), np.concatenate([steps, near[more]])
+            bb = b.take(source)
+            # (2.8) `steps` times: tau + k T, cov(T, tau) + k var T, var tau + 2k cov + k^2 var T + k Q
+            pred = Block(bb.period, bb.tau + steps * bb.period, bb.p_tt, bb.p_tx + steps * bb.p_tt,
+                         steps * steps * bb.p_tt + 2.0 * steps * bb.p_tx + bb.p_xx + steps * m.interval_var)
+            missed = steps - 1.0
+            run = missed + self.missed[source]
+        else:  # every source's next arrival only: (4.3)
+            pred, missed, run = predict(b, m), self._zeros, self.missed
+        if self.reset_after is not None and (self._young or run.max() > self.reset_after):
+            # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
+            lost = self._lost(run, source)
+            if lost.any():
+                pred = self._reset(pred, lost, source)
+                missed = np.where(lost, 0.0, missed)
+        e, s = y - pred.tau, pred.p_xx + m.jitter_var
+        miss = np.full(source.size, math.log1p(-q))
+        if source.size > self.n:
+            miss += missed * math.log(q)
+        score = (self.log_pi if source.size == self.n else self.log_pi[source]) + miss - 0.5 * (np.log(s) + e * e / s)
         return Candidates(source, steps, pred, e, s, miss, score)
 
     def act(self, obs: dict[str, Any]) -> int:
@@ -276,6 +284,8 @@ class ProbabilisticTeacher:
         self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))  # (4.4)
         self.arrivals[j] += k
         self.taken[j] += 1
+        if self._young and self.taken[j] == 2:
+            self._young = bool(np.any(self._guessed & (self.taken < 2)))
         run = int(self.missed[j]) + k - 1  # the misses since the source's last pulse
         if counted:
             self._hits += 1

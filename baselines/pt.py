@@ -13,7 +13,9 @@ pi is the priors' `source_prob` (by default the known relative pulse rates, MK94
 
 State: the per-source 2x2 blocks (T, tau) of `baselines.kalman` (MK94's (2.7)-(2.8) with a
 block-diagonal Sigma_{1|0}, so (4.3) costs O(1) per source instead of the published O(N^3)), started
-by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase.
+by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase.  An
+unknown phase: the source's first arrival is uniform over one period from the first pulse received
+(mean y_1 + T/2, variance T^2/12), not anywhere on the time line.
 
 Labels.  The PT's decision is the sampled source (`label="sample"`, the paper).  `label="map"`
 labels each pulse with the most probable source under the same model (the argmax of (4.1)) while
@@ -24,24 +26,40 @@ assigned to the argmax of (4.1), or called spurious by Theorem 1 (below), and th
 sample, drives the update, as DM89's q_hat(k|k) drives (16)-(17) (Agrawala's decision-directed
 learning, against which ref. [6] sets the PT).
 
-Spurious pulses (only when the priors' spurious_rate r > 0): before deciding, the most probable
-source's innovation goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`, lambda =
-r / (1 + r), spread T_j^2 / 12: a uniform arrival over one period); a pulse it calls spurious gets
-the spurious label and updates nothing.  pt-prior has no Step 1 (its choice ignores y), so no test.
-The DLM has no missing-pulse state, so a true pulse rejected by the test (or lost, or taken by the
-wrong source) desynchronises its track for good: the track goes on predicting the lost pulse and
-every later pulse of its source looks spurious.  Two remedies from MK94 VI-C-3 (dropouts):
-`coast=True` (the rule of `fdp`'s `dropout`) predicts a source overdue at y by more than `gate`
-standard deviations plus half a period through its missed arrivals, without measurements, so it
-picks its pulses up where they are; `reset_after=k` "resets" a source coasted through more than k
-arrivals in a row (a detected dropout; needs coasting) by raising its arrival variance to at least T^2/12, so a track
-biased by a wrongly taken pulse, or a source that starts late, is acquired again.  Both are off in
-pt-post (the paper); `dokf` uses coast=True, reset_after=4 (chosen on robust-v0 train seeds: a
-smaller k loses sources of near-equal period whose pulses merge several times in a row).
+Missed pulses (MK94 VI-C-3).  The DLM has no missing-pulse state, so a true pulse lost, rejected or
+taken by the wrong source desynchronises its track: it goes on predicting the lost pulse and every
+later pulse of its source looks spurious.  Remedies:
+- `coast=True` (the rule of `fdp`'s `dropout`) predicts a source overdue at y by more than `gate`
+  standard deviations plus half a period through its missed arrivals, without measurements;
+- when the channel may miss pulses (the priors' missing_prob q > 0, or unknown), (4.1) gets a second
+  hypothesis per source: its arrival nearest to y after m more misses (k = m + 1 steps of (2.8) in
+  closed form), scored log pi_j + log(1 - q) + m log q + log N(e; 0, S), so a pulse between the
+  midpoint of two arrivals and the coasting gate (or any late pulse without coasting) is read as
+  missed arrivals, at their price;
+- `reset_after=k` resets a source missing more than k arrivals in a row (a detected dropout): its
+  phase is unknown again (var tau = T^2/12, cov(T, tau) = 0, so its next pulse does not bend the
+  period; the prior's period back when it has strayed by more than two prior deviations) and the
+  misses cost nothing more.  A source of unknown phase that took one pulse and missed its next
+  arrival is reset too (its first pulse was most likely another's).
+`dokf` uses coast=True, reset_after=4 (chosen on robust-v0 train seeds: a smaller k loses sources
+of near-equal period whose pulses merge several times in a row; coasting floors q at 0.001, so a
+merged pulse stays explainable).  `pt-post` is the published PT on a channel the priors state clean
+(missing_prob = spurious_rate = 0); otherwise (`coast=None`, the default) it takes coast=True,
+reset_after=4 too: without them it calls nearly every pulse spurious once a track slips.
 
-An unknown spurious rate (NaN in the priors, or `rates="estimate"`) is estimated online from the
-tracker's own decisions with a weak Beta prior (mean 0.05, worth 20 pulses): lambda = (spurious
-called + 1) / (pulses + 20), so Theorem 1's threshold follows the channel.
+Spurious pulses (when the priors' spurious_rate r > 0, or unknown): before deciding, the best
+hypothesis goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`, spread T_j^2 / 12: a
+uniform arrival over one period) with prior odds lambda : (1 - lambda) P_D q^m, lambda = r / (1 + r)
+the probability that a received pulse is spurious, P_D = 1 - q the detection probability and m the
+hypothesis's misses; a pulse it calls spurious gets the spurious label and updates nothing.
+pt-prior has no Step 1 (its choice ignores y), so no test.
+
+Unknown rates (NaN in the priors, or `rates="estimate"`: both) are estimated online from the
+tracker's own decisions with a weak Beta prior (mean 0.05, worth 20): q = (misses + 1) / (arrivals
++ 20) over the taken pulses and the misses before them (a dropout's are not misses), lambda =
+(spurious called + 1) / (pulses + 20), so the test and the miss prices follow the channel.  While
+unknown phases are being acquired (two longest periods) decisions are not counted: a wrong start
+would otherwise feed itself back into lambda.
 """
 
 from __future__ import annotations

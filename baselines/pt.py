@@ -13,9 +13,8 @@ pi is the priors' `source_prob` (by default the known relative pulse rates, MK94
 
 State: the per-source 2x2 blocks (T, tau) of `baselines.kalman` (MK94's (2.7)-(2.8) with a
 block-diagonal Sigma_{1|0}, so (4.3) costs O(1) per source instead of the published O(N^3)), started
-by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase.  An
-unknown phase: the source's first arrival is uniform over one period from the first pulse received
-(mean y_1 + T/2, variance T^2/12), not anywhere on the time line.
+by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase (an
+unknown phase: a huge variance, MK94's Sigma_{1|0} = 10^6 I).
 
 Labels.  The PT's decision is the sampled source (`label="sample"`, the paper).  `label="map"`
 labels each pulse with the most probable source under the same model (the argmax of (4.1)) while
@@ -60,6 +59,12 @@ tracker's own decisions with a weak Beta prior (mean 0.05, worth 20): q = (misse
 (spurious called + 1) / (pulses + 20), so the test and the miss prices follow the channel.  While
 unknown phases are being acquired (two longest periods) decisions are not counted: a wrong start
 would otherwise feed itself back into lambda.
+
+Start beam (`dokf`, unknown phases).  Which fresh track a first pulse starts is a guess that a single
+decision gets wrong too often (then every track holds another source's pulses: 0.002 of the labels
+right on one test file), so until two longest periods have passed `dokf` keeps the 32 best
+labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs
+them), labels each pulse by the best at once (lag 0), and then goes on from the best alone.
 """
 
 from __future__ import annotations
@@ -71,8 +76,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from deint_env.receiver import is_spurious
-from baselines.kalman import (Block, DLMModel, initial_block, overdue, phase_estimate, predict, prior_block,
-                              update)
+from baselines.kalman import Block, DLMModel, overdue, phase_estimate, predict, prior_block, update
 from deint_env.episode import Priors
 from deint_env.policies import policy_rng
 
@@ -81,6 +85,7 @@ _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depe
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
 _Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
+_START_BEAM = 32  # labellings kept while `dokf` acquires unknown phases
 _AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
@@ -100,6 +105,16 @@ class Candidates(NamedTuple):
     s: np.ndarray
     miss: np.ndarray
     score: np.ndarray
+
+
+class _TrackState(NamedTuple):
+    """What one labelling of the start beam holds: the blocks and the per-source arrival counts."""
+
+    blocks: Block
+    arrivals: np.ndarray
+    missed: np.ndarray
+    taken: np.ndarray
+    young: bool
 
 
 class ProbabilisticTeacher:
@@ -156,24 +171,23 @@ class ProbabilisticTeacher:
         self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
         self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
         self._started = False
+        self._beam: list[tuple[float, _TrackState]] | None = None  # the start's labellings (`_start_beam`)
         self._rng = policy_rng(info, self.seed)
         self._u: list[float] = []
         self._posterior = self.teacher != "prior" or self.label == "map"
 
     def _start(self, y: float) -> None:
-        """An unknown phase: the source's first arrival is uniform over one period from the first pulse
-        received (mean y + T/2, variance T^2/12), not anywhere on the line, so a late first pulse is
-        read as missed arrivals and the start does not depend on where the file's time origin is."""
+        """At the first pulse: with unknown phases (kalman.prior_block's huge variance, MK94's
+        Sigma_{1|0} = 10^6 I), decisions are guesses until two longest periods have passed: they are
+        not counted as evidence about the channel (a wrong start would feed itself back into lambda),
+        and `dokf` makes them by the start beam (`_start_beam`)."""
         self._started = True
-        p = self.priors
-        # while unknown phases are being acquired (two longest periods), decisions are guesses, not
-        # evidence about the channel: counting them would feed every wrong start back into lambda
-        self._settled = y + 2.0 * float(np.max(p.period)) if self._guessed.any() else -math.inf
-        unknown = ~np.isfinite(p.phase)
-        if unknown.any():
-            t = np.asarray(p.period, dtype=np.float64)
-            fresh = initial_block(t, y + 0.5 * t, p.period_std, t / math.sqrt(12.0))
-            self.blocks.put(unknown, fresh.take(unknown))
+        if self._guessed.any():
+            self._settled = y + 2.0 * float(np.max(self.priors.period))
+            if self.teacher == "decision":
+                self._beam = [(0.0, self._save())]
+        else:
+            self._settled = -math.inf
 
     def _uniform(self) -> float:
         if not self._u:
@@ -278,10 +292,14 @@ class ProbabilisticTeacher:
             b.put(j, update(pred, y - pred.tau, pred.p_xx + self.model.jitter_var, self.model))
             self.arrivals[j] += 1
             return j
-        c = self.candidates(y)
-        best = int(np.argmax(c.score))
         self._rates()
         counted = y > self._settled
+        if self._beam is not None:
+            if not counted:
+                return self._start_beam(y)
+            self._beam = None  # the start is over: on from the best labelling alone (loaded)
+        c = self.candidates(y)
+        best = int(np.argmax(c.score))
         self._pulses += counted
         if self._lam > 0 and self.teacher != "prior":
             # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
@@ -298,8 +316,13 @@ class ProbabilisticTeacher:
         else:
             cum = np.cumsum(np.exp(c.score - c.score[best]))
             pick = min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+        self._apply(c, pick, counted)
+        return int(c.source[best]) if self.label == "map" else int(c.source[pick])
+
+    def _apply(self, c: Candidates, pick: int, counted: bool) -> None:
+        """(4.4): the KF update of the source of hypothesis `pick`, and its arrival bookkeeping."""
         j, k = int(c.source[pick]), int(c.steps[pick])
-        self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))  # (4.4)
+        self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))
         self.arrivals[j] += k
         self.taken[j] += 1
         if self._young and self.taken[j] == 2:
@@ -310,7 +333,50 @@ class ProbabilisticTeacher:
             if self.reset_after is None or run <= self.reset_after:  # a dropout is not a run of misses
                 self._missed += run
         self.missed[j] = 0
-        return int(c.source[best]) if self.label == "map" else j
+
+    def _save(self) -> _TrackState:
+        return _TrackState(self.blocks.copy(), self.arrivals.copy(), self.missed.copy(), self.taken.copy(), self._young)
+
+    def _load(self, state: _TrackState) -> None:
+        self.blocks, self.arrivals, self.missed, self.taken = (state.blocks.copy(), state.arrivals.copy(),
+                                                               state.missed.copy(), state.taken.copy())
+        self._young = state.young
+
+    def _start_beam(self, y: float) -> int:
+        """`dokf` while unknown phases are acquired (until two longest periods have passed): which
+        fresh track a first pulse starts is a guess a single decision gets wrong too often, so the
+        decisions of the start are a beam search: every kept labelling is extended by each hypothesis
+        of `candidates` (log(1 - lambda) + its score) and by "spurious" (log lambda + Theorem 1's
+        spread density around its best hypothesis), the best `_START_BEAM` kept; each pulse is labelled
+        at once by the best, and after the start the tracker goes on from the best alone.  One kept
+        labelling reproduces the single-decision rule exactly."""
+        lam = self._lam
+        log_pulse = math.log1p(-lam)
+        children = []
+        for score, state in self._beam:
+            self._load(state)
+            c = self.candidates(y)  # coasts the loaded state
+            parent = self._save()
+            for r in range(c.score.size):
+                children.append((score + log_pulse + float(c.score[r]), parent, c, r))
+            if lam > 0:
+                b = int(np.argmax(c.score))
+                spread = float(c.s[b]) + float(c.pred.period[b]) ** 2 / 12.0
+                e = float(c.e[b])
+                children.append((score + math.log(lam) + float(self.log_pi[c.source[b]])
+                                 - 0.5 * (math.log(spread) + e * e / spread), parent, c, -1))
+        children.sort(key=lambda ch: -ch[0])
+        beam = []
+        for score, parent, c, r in children[:_START_BEAM]:
+            self._load(parent)
+            if r >= 0:
+                self._apply(c, r, False)
+            beam.append((score, self._save()))
+        top = children[0]
+        label = int(top[2].source[top[3]]) if top[3] >= 0 else self.n
+        self._beam = beam
+        self._load(beam[0][1])  # the tracker's state is the best labelling's
+        return label
 
     def estimates(self) -> dict[str, np.ndarray]:
         return {"period": self.blocks.period.copy(), "phase": phase_estimate(self.blocks, self.arrivals)}

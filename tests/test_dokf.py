@@ -176,15 +176,18 @@ def _outside_train(seed: int, missing: float, spurious: float, n: int = 1200):
     return toa[order], source[order], period, phase
 
 
-def _label_accuracy(tmp_path, toa, source, period, phase, rates) -> float:
-    """`deint label --policy dokf` with priors stating periods, phases and jitters, and the rates only
-    when `rates` is given; the accuracy of the written labels (-1 = spurious) against the truth."""
+def _label_accuracy(tmp_path, toa, source, period, phase, rates, phases: bool = True) -> float:
+    """`deint label --policy dokf` with priors stating periods and jitters, the phases when `phases`,
+    and the rates only when `rates` is given; the accuracy of the written labels (-1 = spurious)
+    against the truth."""
     from deint_env.cli import main
 
     pulses, priors, labels = tmp_path / "pulses.csv", tmp_path / "priors.json", tmp_path / "labels.csv"
     pulses.write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
-    stated = {"period": (period * 1.002).tolist(), "period_std": (0.01 * period).tolist(),
-              "phase": (phase + 0.3).tolist(), "phase_std": [1.0] * 3, "jitter_std": 0.1, "pri_jitter_std": 0.1}
+    stated = {"period": (period * 1.002).tolist(), "period_std": (0.01 * period).tolist(), "jitter_std": 0.1,
+              "pri_jitter_std": 0.1}
+    if phases:
+        stated.update(phase=(phase + 0.3).tolist(), phase_std=[1.0] * 3)
     if rates is not None:
         stated["missing_prob"], stated["spurious_rate"] = rates
     priors.write_text(json.dumps(stated))
@@ -211,3 +214,13 @@ def test_dokf_unknown_rates_lose_little_against_known_rates(tmp_path, channel):
     assert known.mean() > 0.9, known
     assert known.mean() - unknown.mean() <= 0.02, (known, unknown)
     assert np.max(known - unknown) <= 0.06, (known, unknown)
+
+
+def test_dokf_with_unknown_phases_and_rates_acquires_every_source(tmp_path):
+    """Priors with periods only (no phases, no rates).  A single decision per pulse starts the wrong
+    fresh track too often (seed 1 at 10 % missing: 0.002 of labels right before the start beam); the
+    start beam acquires them: measured 0.89-0.98 on seeds 0-4 of every setting here."""
+    for seed, missing, spurious in ((1, 0.1, 0.0), (4, 0.3, 0.0), (0, 0.0, 0.1), (0, 0.0, 0.2)):
+        toa, source, period, phase = _outside_train(seed, missing, spurious)
+        acc = _label_accuracy(tmp_path, toa, source, period, phase, None, phases=False)
+        assert acc > 0.85, (seed, missing, spurious, acc)

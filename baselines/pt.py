@@ -119,8 +119,9 @@ class _TrackState(NamedTuple):
 
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
-    (the MAP decision teaches: `dokf`); `label`, `coast`, `reset_after`, `rates`: see the module doc.
-    `seed`: the policy's own seed (default: the runner's policy_seed)."""
+    (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
+    priors state a clean channel), `gate`, `reset_after`, `rates`: see the module doc.  `seed`: the
+    policy's own seed (default: the runner's policy_seed)."""
 
     lag = 0
 

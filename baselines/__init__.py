@@ -24,9 +24,11 @@ POLICIES = (
                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
     PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
                description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities"),
-    PolicyInfo("pt-post", "baselines.pt:PTPost", modes=ANCHORED,
+    # pt-post/dokf version 2: missed arrivals as scored hypotheses, Theorem 1 with P_D q^m, online rates,
+    # decorrelating dropout reset, unknown phases uniform over the first period; pt-post coasts off a clean channel
+    PolicyInfo("pt-post", "baselines.pt:PTPost", modes=ANCHORED, version=2,
                description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)"),
-    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED,
+    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=2,
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them)

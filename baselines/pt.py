@@ -13,7 +13,8 @@ pi is the priors' `source_prob` (by default the known relative pulse rates, MK94
 
 State: the per-source 2x2 blocks (T, tau) of `baselines.kalman` (MK94's (2.7)-(2.8) with a
 block-diagonal Sigma_{1|0}, so (4.3) costs O(1) per source instead of the published O(N^3)), started
-by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase.
+by `kalman.prior_block`: tau = phi - T, so a source's first pulse is predicted at its phase (an
+unknown phase: a huge variance, MK94's Sigma_{1|0} = 10^6 I).
 
 Labels.  The PT's decision is the sampled source (`label="sample"`, the paper).  `label="map"`
 labels each pulse with the most probable source under the same model (the argmax of (4.1)) while
@@ -24,57 +25,107 @@ assigned to the argmax of (4.1), or called spurious by Theorem 1 (below), and th
 sample, drives the update, as DM89's q_hat(k|k) drives (16)-(17) (Agrawala's decision-directed
 learning, against which ref. [6] sets the PT).
 
-Spurious pulses (only when the priors' spurious_rate r > 0): before deciding, the most probable
-source's innovation goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`, lambda =
-r / (1 + r), spread T_j^2 / 12: a uniform arrival over one period); a pulse it calls spurious gets
-the spurious label and updates nothing.  pt-prior has no Step 1 (its choice ignores y), so no test.
-The DLM has no missing-pulse state, so a true pulse rejected by the test (or lost, or taken by the
-wrong source) desynchronises its track for good: the track goes on predicting the lost pulse and
-every later pulse of its source looks spurious.  Two remedies from MK94 VI-C-3 (dropouts):
-`coast=True` (the rule of `fdp`'s `dropout`) predicts a source overdue at y by more than `gate`
-standard deviations plus half a period through its missed arrivals, without measurements, so it
-picks its pulses up where they are; `reset_after=k` "resets" a source coasted through more than k
-arrivals in a row (a detected dropout; needs coasting) by raising its arrival variance to at least T^2/12, so a track
-biased by a wrongly taken pulse, or a source that starts late, is acquired again.  Both are off in
-pt-post (the paper); `dokf` uses coast=True, reset_after=4 (chosen on robust-v0 train seeds: a
-smaller k loses sources of near-equal period whose pulses merge several times in a row).
+Missed pulses (MK94 VI-C-3).  The DLM has no missing-pulse state, so a true pulse lost, rejected or
+taken by the wrong source desynchronises its track: it goes on predicting the lost pulse and every
+later pulse of its source looks spurious.  Remedies:
+- `coast=True` (the rule of `fdp`'s `dropout`) predicts a source overdue at y by more than `gate`
+  standard deviations plus half a period through its missed arrivals, without measurements;
+- when the channel may miss pulses (the priors' missing_prob q > 0, or unknown), (4.1) gets a second
+  hypothesis per source: its arrival nearest to y after m more misses (k = m + 1 steps of (2.8) in
+  closed form), scored log pi_j + log(1 - q) + m log q + log N(e; 0, S), so a pulse between the
+  midpoint of two arrivals and the coasting gate (or any late pulse without coasting) is read as
+  missed arrivals, at their price;
+- `reset_after=k` resets a source missing more than k arrivals in a row (a detected dropout): its
+  phase is unknown again (var tau = T^2/12, cov(T, tau) = 0, so its next pulse does not bend the
+  period; the prior's period back when it has strayed by more than two prior deviations) and the
+  misses cost nothing more.  A source of unknown phase that took one pulse and missed its next
+  arrival is reset too (its first pulse was most likely another's).
+`dokf` uses coast=True, reset_after=4 (chosen on robust-v0 train seeds: a smaller k loses sources
+of near-equal period whose pulses merge several times in a row; coasting floors q at 0.001, so a
+merged pulse stays explainable).  `pt-post` is the published PT on a channel the priors state clean
+(missing_prob = spurious_rate = 0); otherwise (`coast=None`, the default) it takes coast=True,
+reset_after=4 too: without them it calls nearly every pulse spurious once a track slips.
 
-An unknown spurious rate (NaN in the priors, or `rates="estimate"`) is estimated online from the
-tracker's own decisions with a weak Beta prior (mean 0.05, worth 20 pulses): lambda = (spurious
-called + 1) / (pulses + 20), so Theorem 1's threshold follows the channel.
+Spurious pulses (when the priors' spurious_rate r > 0, or unknown): before deciding, the best
+hypothesis goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`, spread T_j^2 / 12: a
+uniform arrival over one period) with prior odds lambda : (1 - lambda) P_D q^m, lambda = r / (1 + r)
+the probability that a received pulse is spurious, P_D = 1 - q the detection probability and m the
+hypothesis's misses; a pulse it calls spurious gets the spurious label and updates nothing.
+pt-prior has no Step 1 (its choice ignores y), so no test.
+
+Unknown rates (NaN in the priors, or `rates="estimate"`: both) are estimated online from the
+tracker's own decisions with a weak Beta prior (mean 0.05, worth 20): q = (misses + 1) / (arrivals
++ 20) over the taken pulses and the misses before them (a dropout's are not misses), lambda =
+(spurious called + 1) / (pulses + 20), so the test and the miss prices follow the channel.  While
+unknown phases are being acquired (two longest periods) decisions are not counted: a wrong start
+would otherwise feed itself back into lambda.
+
+Start beam (`dokf`, unknown phases).  Which fresh track a first pulse starts is a guess that a single
+decision gets wrong too often (then every track holds another source's pulses: 0.002 of the labels
+right on one test file), so until two longest periods have passed `dokf` keeps the 32 best
+labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs
+them), labels each pulse by the best at once (lag 0), and then goes on from the best alone.
 """
 
 from __future__ import annotations
 
 import math
 from bisect import bisect_right
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from deint_env.receiver import is_spurious
-from baselines.kalman import (Block, DLMModel, innovation, overdue, phase_estimate, predict, prior_block,
-                              update)
+from baselines.kalman import Block, DLMModel, overdue, phase_estimate, predict, prior_block, update
 from deint_env.episode import Priors
 from deint_env.policies import policy_rng
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depend on the chunking
-_MAX_COAST = 64  # missed arrivals skipped per pulse at most
-_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown spurious fraction
+_PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
+_Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
+_MAX_COAST = 64  # missed arrivals coasted through per pulse at most
+_START_BEAM = 32  # labellings kept while `dokf` acquires unknown phases
+_AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
 TEACHERS = ("prior", "posterior", "decision")
 
 
+class Candidates(NamedTuple):
+    """The hypotheses for one pulse: rows 0..N-1 "source j's next arrival", then (when misses are
+    hypotheses) "source j's nearest arrival after `steps` - 1 misses" for every j whose nearest arrival
+    is not its next.  pred: the k-step predictions (2.8), e and s their innovations (2.15); miss: the
+    log prior of the arrival (detection and misses); score: the log posterior up to a constant."""
+
+    source: np.ndarray
+    steps: np.ndarray
+    pred: Block
+    e: np.ndarray
+    s: np.ndarray
+    miss: np.ndarray
+    score: np.ndarray
+
+
+class _TrackState(NamedTuple):
+    """What one labelling of the start beam holds: the blocks and the per-source arrival counts."""
+
+    blocks: Block
+    arrivals: np.ndarray
+    missed: np.ndarray
+    taken: np.ndarray
+    young: bool
+
+
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
-    (the MAP decision teaches: `dokf`); `label`, `coast`, `gate`, `reset_after`: see the module doc.
-    `seed`: the policy's own seed (default: the runner's policy_seed)."""
+    (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
+    priors state a clean channel), `gate`, `reset_after`, `rates`: see the module doc.  `seed`: the
+    policy's own seed (default: the runner's policy_seed)."""
 
     lag = 0
 
-    def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool = False,
+    def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
                  gate: float = 5.0, reset_after: int | None = None, rates: str = "priors"):
         if teacher not in TEACHERS:
             raise ValueError(f"teacher={teacher!r} must be one of {', '.join(TEACHERS)}")
@@ -89,86 +140,244 @@ class ProbabilisticTeacher:
         if rates not in RATES:
             raise ValueError(f"rates={rates!r} must be one of {', '.join(RATES)}")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
-        self.coast, self.gate, self.reset_after = bool(coast), float(gate), reset_after
+        self.gate = float(gate)
+        self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         self.n = priors.n_labels
+        self.priors = priors
         self.model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))
         self.blocks = prior_block(priors)  # arrays of N: the filtered (T, tau) of every source
         self.arrivals = np.zeros(self.n, dtype=np.int64)  # pulses taken + arrivals coasted through, per source
         self.missed = np.zeros(self.n, dtype=np.int64)  # arrivals coasted through since the last update
+        self._sources, self._ones, self._zeros = np.arange(self.n), np.ones(self.n), np.zeros(self.n)
         pi = np.asarray(priors.source_prob, dtype=np.float64)
         self.log_pi = np.log(pi)
         self._cum_pi = np.cumsum(pi / pi.sum()).tolist()
         self._cum_pi[-1] = math.inf  # u < 1 always lands on a source
-        r = priors.spurious_rate
-        self._estimate = self.rates == "estimate" or math.isnan(r)
-        self._lam = _PRIOR_MEAN if self._estimate else r / (1.0 + r)
-        self._pulses = self._called = 0  # pulses seen, called spurious (for an estimated rate)
+        estimate = self.rates == "estimate"
+        q, r = (math.nan, math.nan) if estimate else (priors.missing_prob, priors.spurious_rate)
+        self._q_known, self._r_known = q, r
+        self.coast, self.reset_after = bool(self._coast_param), self._reset_param
+        if self._coast_param is None and not (q == 0.0 and r == 0.0):  # auto: VI-C-3's remedies off a clean channel
+            self.coast = True
+            self.reset_after = _AUTO_RESET if self._reset_param is None else self._reset_param
+        # misses are hypotheses when coasting, or when the channel may miss pulses at all
+        self._misses = not q == 0.0
+        self._q = _PRIOR_MEAN if math.isnan(q) else q
+        self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
+        self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
+        self.taken = np.zeros(self.n, dtype=np.int64)  # pulses taken, per source
+        self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
+        self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
+        self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
+        self._started = False
+        self._beam: list[tuple[float, _TrackState]] | None = None  # the start's labellings (`_start_beam`)
         self._rng = policy_rng(info, self.seed)
         self._u: list[float] = []
         self._posterior = self.teacher != "prior" or self.label == "map"
+
+    def _start(self, y: float) -> None:
+        """At the first pulse: with unknown phases (kalman.prior_block's huge variance, MK94's
+        Sigma_{1|0} = 10^6 I), decisions are guesses until two longest periods have passed: they are
+        not counted as evidence about the channel (a wrong start would feed itself back into lambda),
+        and `dokf` makes them by the start beam (`_start_beam`)."""
+        self._started = True
+        if self._guessed.any():
+            self._settled = y + 2.0 * float(np.max(self.priors.period))
+            if self.teacher == "decision":
+                self._beam = [(0.0, self._save())]
+        else:
+            self._settled = -math.inf
 
     def _uniform(self) -> float:
         if not self._u:
             self._u = self._rng.random(_CHUNK).tolist()[::-1]
         return self._u.pop()
 
-    def posterior(self, y: float) -> tuple[np.ndarray, Block, np.ndarray, np.ndarray]:
-        """(4.1)-(4.3): log f(X_{k+1} = e_j | y_{k+1}, Y_k, X_k) up to a constant, with every source's
-        prediction, its innovation e_j and variance Omega_j."""
+    def _rates(self) -> None:
+        """The Beta-posterior means of the unknown rates from the decided labels so far: q = (misses + 1)
+        / (arrivals + 20) and lambda = (spurious + 1) / (pulses + 20) (prior mean 0.05, worth 20)."""
+        if self._q_known != self._q_known:  # NaN: unknown
+            self._q = (self._missed + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._hits + self._missed + _PRIOR_WEIGHT)
+        if self._r_known != self._r_known:
+            self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
+
+    def _coast(self, y: float) -> None:
+        """VI-C-3: skip the missed arrivals of every source overdue at y (`coast`), resetting a source
+        coasted through more than `reset_after` arrivals in a row (a detected dropout)."""
         b, m = self.blocks, self.model
-        pred = predict(b, m)
-        if self.coast:  # VI-C-3: skip the missed arrivals of every source overdue at y
-            for _ in range(_MAX_COAST):
-                late = overdue(pred, y, m, self.gate)
-                if not late.any():
-                    break
-                b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
-                self.missed += late
-                self.arrivals += late
-                if self.reset_after is not None:  # a dropout: open the arrival up to a whole period
-                    lost = self.missed > self.reset_after
-                    b = b._replace(p_xx=np.where(lost, np.maximum(b.p_xx, b.period ** 2 / 12.0), b.p_xx))
-                pred = predict(b, m)
-            self.blocks = b
-        e, s = innovation(pred, y, m)
-        return self.log_pi - 0.5 * (np.log(s) + e * e / s), pred, e, s
+        for _ in range(_MAX_COAST):
+            pred = predict(b, m)
+            late = overdue(pred, y, m, self.gate)
+            if not late.any():
+                break
+            b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
+            self.missed += late
+            self.arrivals += late
+            if self.reset_after is not None:
+                b = self._reset(b, self._lost(self.missed, slice(None)))
+        self.blocks = b
+
+    def _lost(self, run: np.ndarray, source: np.ndarray | slice) -> np.ndarray:
+        """A dropout: more than `reset_after` misses in a row; or a source of unknown phase that took one
+        pulse and missed its next arrival (that first pulse was most likely not its own)."""
+        if not self._young:
+            return run > self.reset_after
+        young = self._guessed[source] & (self.taken[source] == 1)
+        return (run > self.reset_after) | (young & (run >= 1))
+
+    def _reset(self, b: Block, lost: np.ndarray, source: np.ndarray | slice = slice(None)) -> Block:
+        """MK94 VI-C-3's reset of a source lost in a dropout: its phase is unknown again (uniform over
+        one period: var tau = T^2/12, uncorrelated with T, so the error of its next pulse does not
+        bend the period), its period kept, or the prior's when it has left the prior by more than two
+        prior deviations (a track biased by wrongly taken pulses)."""
+        if not lost.any():
+            return b
+        prior_t, prior_tt = self.priors.period[source], self.priors.period_std[source] ** 2
+        astray = lost & ((b.period - prior_t) ** 2 > 4.0 * prior_tt)
+        t = np.where(astray, prior_t, b.period)
+        return Block(t, b.tau, np.where(astray, prior_tt, b.p_tt), np.where(lost, 0.0, b.p_tx),
+                     np.where(lost, t * t / 12.0, b.p_xx))
+
+    def candidates(self, y: float) -> Candidates:
+        """(4.1)-(4.3) with missed arrivals: for every source its next arrival and, when the channel
+        may miss pulses, its arrival nearest to y after m more misses (k = m + 1 steps of (2.8) in
+        closed form), scored log pi_j + log(1 - q) + m log q + log N(e; 0, S).  Coasting (`coast`)
+        first skips the arrivals that are plainly past (`_coast`); the nearest-arrival rows decide
+        the rest (a pulse less than `gate` deviations beyond the midpoint of two arrivals, or any
+        late pulse of a non-coasting teacher)."""
+        if self.coast:
+            self._coast(y)
+        b, m = self.blocks, self.model
+        q = max(self._q, _Q_FLOOR) if self.coast else self._q
+        source, steps, more = self._sources, self._ones, None
+        if self._misses and q > 0:
+            near = np.floor((y - b.tau) / b.period + 0.5)
+            more = np.flatnonzero(near > 1.0)
+        if more is not None and more.size:
+            source, steps = np.concatenate([source, more]), np.concatenate([steps, near[more]])
+            bb = b.take(source)
+            # (2.8) `steps` times: tau + k T, cov(T, tau) + k var T, var tau + 2k cov + k^2 var T + k Q
+            pred = Block(bb.period, bb.tau + steps * bb.period, bb.p_tt, bb.p_tx + steps * bb.p_tt,
+                         steps * steps * bb.p_tt + 2.0 * steps * bb.p_tx + bb.p_xx + steps * m.interval_var)
+            missed = steps - 1.0
+            run = missed + self.missed[source]
+        else:  # every source's next arrival only: (4.3)
+            pred, missed, run = predict(b, m), self._zeros, self.missed
+        if self.reset_after is not None and (self._young or run.max() > self.reset_after):
+            # a dropout, as in `_coast`: its phase is lost, its misses cost nothing
+            lost = self._lost(run, source)
+            if lost.any():
+                pred = self._reset(pred, lost, source)
+                missed = np.where(lost, 0.0, missed)
+        e, s = y - pred.tau, pred.p_xx + m.jitter_var
+        miss = np.full(source.size, math.log1p(-q))
+        if source.size > self.n:
+            miss += missed * math.log(q)
+        score = (self.log_pi if source.size == self.n else self.log_pi[source]) + miss - 0.5 * (np.log(s) + e * e / s)
+        return Candidates(source, steps, pred, e, s, miss, score)
 
     def act(self, obs: dict[str, Any]) -> int:
         if not int(obs["valid"]):
             return 0
         y = float(obs["toa"][0])
+        if not self._started:
+            self._start(y)
         u = self._uniform() if self.teacher != "decision" else 0.0  # one draw per pulse: reproducible
         if not self._posterior:  # pt-prior, sampled labels: only the chosen block is touched
             j = bisect_right(self._cum_pi, u)
             b = self.blocks
             pred = predict(Block(float(b.period[j]), float(b.tau[j]), float(b.p_tt[j]), float(b.p_tx[j]),
                                  float(b.p_xx[j])), self.model)
-            e, s = innovation(pred, y, self.model)
-            b.put(j, update(pred, e, s, self.model))
+            b.put(j, update(pred, y - pred.tau, pred.p_xx + self.model.jitter_var, self.model))
             self.arrivals[j] += 1
             return j
-        logp, pred, e, s = self.posterior(y)
-        best = int(np.argmax(logp))
-        if self._estimate:
-            self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
-            self._pulses += 1
-        if self._lam > 0 and self.teacher != "prior" and is_spurious(
-                float(e[best]), float(s[best]), self._lam, float(pred.period[best]) ** 2 / 12.0):
-            self._called += 1
-            return self.n
+        self._rates()
+        counted = y > self._settled
+        if self._beam is not None:
+            if not counted:
+                return self._start_beam(y)
+            self._beam = None  # the start is over: on from the best labelling alone (loaded)
+        c = self.candidates(y)
+        best = int(np.argmax(c.score))
+        self._pulses += counted
+        if self._lam > 0 and self.teacher != "prior":
+            # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
+            # (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)
+            pulse = (1.0 - self._lam) * math.exp(float(c.miss[best]))
+            lam = self._lam / (self._lam + pulse)
+            if is_spurious(float(c.e[best]), float(c.s[best]), lam, float(c.pred.period[best]) ** 2 / 12.0):
+                self._called += counted
+                return self.n
         if self.teacher == "prior":
-            j = bisect_right(self._cum_pi, u)
+            pick = int(np.flatnonzero(c.source == bisect_right(self._cum_pi, u))[0])
         elif self.teacher == "decision":
-            j = best
+            pick = best
         else:
-            cum = np.cumsum(np.exp(logp - logp[best]))
-            j = min(int(np.searchsorted(cum, u * cum[-1], side="right")), self.n - 1)
-        self.blocks.put(j, update(pred.take(j), e[j], s[j], self.model))  # (4.4)
-        self.arrivals[j] += 1
+            cum = np.cumsum(np.exp(c.score - c.score[best]))
+            pick = min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+        self._apply(c, pick, counted)
+        return int(c.source[best]) if self.label == "map" else int(c.source[pick])
+
+    def _apply(self, c: Candidates, pick: int, counted: bool) -> None:
+        """(4.4): the KF update of the source of hypothesis `pick`, and its arrival bookkeeping."""
+        j, k = int(c.source[pick]), int(c.steps[pick])
+        self.blocks.put(j, update(c.pred.take(pick), c.e[pick], c.s[pick], self.model))
+        self.arrivals[j] += k
+        self.taken[j] += 1
+        if self._young and self.taken[j] == 2:
+            self._young = bool(np.any(self._guessed & (self.taken < 2)))
+        run = int(self.missed[j]) + k - 1  # the misses since the source's last pulse
+        if counted:
+            self._hits += 1
+            if self.reset_after is None or run <= self.reset_after:  # a dropout is not a run of misses
+                self._missed += run
         self.missed[j] = 0
-        return best if self.label == "map" else j
+
+    def _save(self) -> _TrackState:
+        return _TrackState(self.blocks.copy(), self.arrivals.copy(), self.missed.copy(), self.taken.copy(), self._young)
+
+    def _load(self, state: _TrackState) -> None:
+        self.blocks, self.arrivals, self.missed, self.taken = (state.blocks.copy(), state.arrivals.copy(),
+                                                               state.missed.copy(), state.taken.copy())
+        self._young = state.young
+
+    def _start_beam(self, y: float) -> int:
+        """`dokf` while unknown phases are acquired (until two longest periods have passed): which
+        fresh track a first pulse starts is a guess a single decision gets wrong too often, so the
+        decisions of the start are a beam search: every kept labelling is extended by each hypothesis
+        of `candidates` (log(1 - lambda) + its score) and by "spurious" (log lambda + Theorem 1's
+        spread density around its best hypothesis), the best `_START_BEAM` kept; each pulse is labelled
+        at once by the best, and after the start the tracker goes on from the best alone.  One kept
+        labelling reproduces the single-decision rule exactly."""
+        lam = self._lam
+        log_pulse = math.log1p(-lam)
+        children = []
+        for score, state in self._beam:
+            self._load(state)
+            c = self.candidates(y)  # coasts the loaded state
+            parent = self._save()
+            for r in range(c.score.size):
+                children.append((score + log_pulse + float(c.score[r]), parent, c, r))
+            if lam > 0:
+                b = int(np.argmax(c.score))
+                spread = float(c.s[b]) + float(c.pred.period[b]) ** 2 / 12.0
+                e = float(c.e[b])
+                children.append((score + math.log(lam) + float(self.log_pi[c.source[b]])
+                                 - 0.5 * (math.log(spread) + e * e / spread), parent, c, -1))
+        children.sort(key=lambda ch: -ch[0])
+        beam = []
+        for score, parent, c, r in children[:_START_BEAM]:
+            self._load(parent)
+            if r >= 0:
+                self._apply(c, r, False)
+            beam.append((score, self._save()))
+        top = children[0]
+        label = int(top[2].source[top[3]]) if top[3] >= 0 else self.n
+        self._beam = beam
+        self._load(beam[0][1])  # the tracker's state is the best labelling's
+        return label
 
     def estimates(self) -> dict[str, np.ndarray]:
         return {"period": self.blocks.period.copy(), "phase": phase_estimate(self.blocks, self.arrivals)}
@@ -184,7 +393,7 @@ class PTPrior(ProbabilisticTeacher):
 class PTPost(ProbabilisticTeacher):
     """`pt-post`: MK94 IV, the source drawn from the a-posteriori probabilities (4.1)-(4.3)."""
 
-    def __init__(self, label: str = "sample", seed: int | None = None, coast: bool = False, gate: float = 5.0,
+    def __init__(self, label: str = "sample", seed: int | None = None, coast: bool | None = None, gate: float = 5.0,
                  reset_after: int | None = None, rates: str = "priors"):
         super().__init__("posterior", label, seed, coast, gate, reset_after, rates)
 

@@ -100,11 +100,12 @@ def test_coasting_and_resets_keep_tracks_alive():
     spur = simulate(CLEAN_TWO.replace(n_pulses=400, toa_jitter_std=0.05, spurious_rate=0.1), 0)
     truly = spur.source < 0
     thrown = {}
-    for name in ("pt-post", "pt-post:coast=true", "pt-post:coast=true,reset_after=4", "dokf:coast=false", "dokf"):
+    for name in ("pt-post:coast=false", "pt-post:coast=true,reset_after=4", "pt-post", "dokf:coast=false", "dokf"):
         called = play(make_policy(name), spur, policy_seed=0).labels == spur.n_labels
         thrown[name] = np.mean(called[~truly])
-    assert thrown["pt-post"] > 0.3 and thrown["dokf:coast=false"] > 0.3
-    assert thrown["pt-post:coast=true,reset_after=4"] < 0.05 and thrown["dokf"] < 0.05, thrown
+    assert thrown["pt-post:coast=false"] > 0.3 and thrown["dokf:coast=false"] > 0.3
+    # pt-post takes the remedies by itself when the priors state a spurious (or missing) rate
+    assert max(thrown["pt-post:coast=true,reset_after=4"], thrown["pt-post"], thrown["dokf"]) < 0.05, thrown
 
 
 def test_policy_parameters_are_checked():
@@ -142,3 +143,17 @@ def test_pt_experiments_run_quick(name, tmp_path):
     rows = json.loads((tmp_path / f"{name}.json").read_text())["rows"]
     assert rows and all(r["ours"] != "" for r in rows)
     assert report.files == [f"{name}.png"]
+
+
+@pytest.mark.parametrize("scenario", ["robust-spurious0.2", "robust-combined"])
+def test_pt_post_off_a_clean_channel_does_not_collapse(scenario):
+    """Told a spurious (or missing) rate, the published PT calls nearly every pulse spurious once a
+    track slips (coast=false: 0.35-0.66 of 400 pulses right on seeds 0-3); with VI-C-3's coasting,
+    resets and the scored missed arrivals, which pt-post takes by itself off a clean channel, >= 0.85
+    (measured 0.88-0.99), and with the rates unknown too (estimated online) >= 0.7 (measured 0.75-0.99)."""
+    spec = find_entry("robust-v0/" + scenario).spec.replace(n_pulses=400)
+    for seed in range(4):
+        ep = simulate(spec, seed)
+        told, bare, guessed = (play(make_policy(name), ep, policy_seed=seed).metrics["accuracy"]
+                               for name in ("pt-post", "pt-post:coast=false", "pt-post:rates=estimate"))
+        assert bare < 0.7 and told >= 0.85 and guessed >= 0.7, (seed, bare, told, guessed)

@@ -140,7 +140,7 @@ import baselines.floors as floors
 
 class Slow(floors.RandomPolicy):
     def reset(self, priors, info):
-        time.sleep(0.3)
+        time.sleep(1.0)  # long enough that a loaded machine still has episodes left when SIGINT lands
         super().reset(priors, info)
 
 policies.list_policies()

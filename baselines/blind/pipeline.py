@@ -151,22 +151,35 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
 
 class Group(NamedTuple):
     """Chains that are one train: a frame period F (a multiple of every chain's period) and the phase
-    of every sub-train of period F they hold (a chain of period F / n holds n)."""
+    of every sub-train of period F they hold (a chain of period F / n holds n); `extra`: chains of the
+    train that are no sub-train of it (labelled with it, not modelled)."""
 
     chains: list[int]
     frame: float
     origins: np.ndarray
+    extra: tuple[int, ...] = ()
 
 
-def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
+def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) -> list[Group]:
     """Chains whose periods are (integer multiples of) one another within 4 combined standard
     deviations are one train: the sub-trains of a stagger, or a constant train extracted in pieces at
-    multiples of its PRI.  Greedy, by increasing period."""
+    multiples of its PRI.  Greedy, by increasing period.  A chain off a lattice (residuals over
+    3 sigma: a modulated train followed by the agile walk) is a train of its own.
+
+    A long periodic PRI (a sweep, wobulation or dwell cycle of M pulses) is found as M sub-trains at
+    its frame; the walks also string its pulses from one sub-train to the next, at the frame minus one
+    PRI or so.  Such chains, within 5 % of the frame of a group of 8 or more sub-trains and of no
+    group of their own larger than 3 chains, join it as `extra`."""
     fits = [line_fit(t[c.index], c.k) for c in chains]
     members: list[list[int]] = []
     for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
         f = fits[i]
+        if f.resid_std > 3 * sigma + 1e-3 * f.period:
+            members.append([i])
+            continue
         for g in members:
+            if fits[g[0]].resid_std > 3 * sigma + 1e-3 * fits[g[0]].period:
+                continue
             h = fits[g[0]]  # the group's smallest period
             n = round(f.period / h.period)
             if n >= 1 and abs(f.period - n * h.period) <= 4 * math.hypot(f.period_std, n * h.period_std) \
@@ -184,7 +197,16 @@ def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
         frame = float(np.sum(w * est) / w.sum())
         origins = np.concatenate([fits[i].origin + fits[i].period * np.arange(m) for i, m in zip(g, mult)])
         groups.append(Group(g, frame, origins))
-    return groups
+    big = [j for j, g in enumerate(groups) if g.origins.size >= 8]
+    out, extra = [], {j: [] for j in big}
+    for j, g in enumerate(groups):
+        host = None if j in extra or len(g.chains) > 3 else next(
+            (b for b in big if abs(g.frame - groups[b].frame) <= 0.05 * groups[b].frame), None)
+        if host is None:
+            out.append(j)
+        else:
+            extra[host].extend(g.chains)
+    return [groups[j]._replace(extra=tuple(extra.get(j, ()))) for j in out]
 
 
 def _lattice(origin: float, period: float, t0: float, t1: float) -> np.ndarray:
@@ -206,8 +228,8 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
     chains = extract_chains(t, detect, p)
     lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
     models, schedules = [], []
-    for g in group_chains(t, chains):
-        for i in g.chains:
+    for g in group_chains(t, chains, p.sigma):
+        for i in g.chains + list(g.extra):
             labels[chains[i].index] = len(models)
         c = chains[g.chains[0]]
         if g.origins.size > 1:

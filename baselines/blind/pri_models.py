@@ -72,7 +72,95 @@ def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIM
     # sub-trains found at a multiple of the frame repeat their levels: keep one cycle
     m = levels.size
     cycle = next(d for d in range(1, m + 1) if m % d == 0 and np.all(np.abs(levels - np.roll(levels, d)) <= 2 * tol))
-    return PRIModel("stagger", frame / m, tuple(float(v) for v in levels[:cycle])), phases
+    return cycle_model(levels[:cycle], tol), phases
+
+
+def _slots(levels: np.ndarray) -> np.ndarray:
+    """The PRIs of one frame from the gaps between the sub-train phases found.  A gap within 1.5 times
+    the smallest, or within 10 % of a neighbour, is one PRI (a sweep's or wobulation's PRIs differ by
+    less, a dwell repeats its PRI); another holds
+    q = round(gap / local) PRIs, q - 1 sub-trains missing, with `local` the mean of the nearest
+    one-PRI gaps on either side, and is split into q equal PRIs."""
+    m = levels.size
+    # a dwell holds a long PRI for several pulses: a gap like a neighbour's is a PRI, not a hole
+    like = np.minimum(np.abs(levels - np.roll(levels, 1)), np.abs(levels - np.roll(levels, -1))) <= 0.1 * levels
+    single = (levels <= 1.5 * levels.min()) | like
+    idx = np.flatnonzero(single)
+    q = np.ones(m, dtype=np.int64)
+    for i in np.flatnonzero(~single):
+        after = idx[np.argmin(np.mod(idx - i, m))]
+        before = idx[np.argmin(np.mod(i - idx, m))]
+        q[i] = max(1, round(float(levels[i] / (0.5 * (levels[after] + levels[before])))))
+    return np.repeat(levels / q, q)
+
+
+def _sliding_fit(p: np.ndarray) -> tuple[float, float, int]:
+    """(rss, depth, rotation) of the best saw-tooth a + b x_j, x_j = ((j + r) mod M) / (M - 1) - 1/2, b > 0."""
+    m = p.size
+    best = (math.inf, 0.0, 0)
+    for r in range(m):
+        x = np.mod(np.arange(m) + r, m) / (m - 1) - 0.5
+        xc = x - x.mean()
+        b = float(xc @ (p - p.mean()) / (xc @ xc))
+        rss = float(np.sum((p - p.mean() - b * xc) ** 2))
+        if b > 0 and rss < best[0]:
+            best = (rss, b / float(p.mean()), r)
+    return best
+
+
+def _harmonic_fit(p: np.ndarray, h: int) -> tuple[float, float]:
+    """(rss, depth) of a + c cos(2 pi h j / M) + s sin(2 pi h j / M): h wobulation cycles per frame."""
+    j = np.arange(p.size)
+    x = np.stack([np.ones(p.size), np.cos(2 * np.pi * h * j / p.size), np.sin(2 * np.pi * h * j / p.size)], 1)
+    coef, *_ = np.linalg.lstsq(x, p, rcond=None)
+    return float(np.sum((p - x @ coef) ** 2)), float(math.hypot(coef[1], coef[2]) / coef[0])
+
+
+def _dwell_fits(p: np.ndarray) -> list[tuple[float, int, np.ndarray]]:
+    """Per dwell length c: (rss, c, dwell PRIs) of the best piecewise-constant cycle of M / c dwells (2 to 8)
+    of c equal PRIs, over the rotations."""
+    m = p.size
+    out = []
+    for c in range(2, m // 2 + 1):
+        if m % c or not 2 <= m // c <= 8:
+            continue
+        best = (math.inf, c, np.empty(0))
+        for r in range(c):
+            runs = np.roll(p, -r).reshape(m // c, c)
+            rss = float(np.sum((runs - runs.mean(1, keepdims=True)) ** 2))
+            if rss < best[0]:
+                best = (rss, c, runs.mean(1))
+        out.append(best)
+    return out
+
+
+def cycle_model(levels: np.ndarray, tol: float) -> PRIModel:
+    """The model of a periodic PRI sequence found as sub-trains of one frame (its levels: one frame's PRIs,
+    in emission order).  A few levels are a stagger; a long cycle (8 or more PRIs) may be a sliding
+    saw-tooth, a wobulation or dwell-and-switch, whose frames are periodic too: each of the four is
+    fitted to the PRIs (`_slots`) and the one with the least BIC, M log(rss / M) + k log M with the
+    rss floored at the level noise (tol, the sub-trains' phase tolerance), is kept: a shape with 3 or
+    4 parameters beats the M-level stagger when it explains the levels to their noise."""
+    if levels.size < 8:
+        return PRIModel("stagger", float(levels.mean()), tuple(float(v) for v in levels))
+    p = _slots(levels)
+    m = p.size
+    floor = (0.5 * tol) ** 2
+
+    def bic(rss: float, k: int) -> float:
+        return m * math.log(max(rss / m, floor)) + k * math.log(m)
+
+    mean = float(p.mean())
+    options = [(bic(0.0, levels.size), PRIModel("stagger", float(levels.mean()), tuple(float(v) for v in levels)))]
+    rss, depth, _ = _sliding_fit(p)
+    options.append((bic(rss, 3), PRIModel("sliding", mean, (), depth, float(m))))
+    for h in (1, 2, 3):
+        rss, depth = _harmonic_fit(p, h)
+        options.append((bic(rss, 4), PRIModel("sinusoidal", mean, (), depth, m / h)))
+    for rss, c, dwell in _dwell_fits(p):
+        options.append((bic(rss, dwell.size + 2), PRIModel("dwell_switch", mean, tuple(float(v) for v in dwell), 0.0,
+                                                           float(c))))
+    return min(options, key=lambda o: o[0])[1]
 
 
 def _sine_fit(n: np.ndarray, d: np.ndarray, max_cycle: float) -> tuple[float, float, float]:

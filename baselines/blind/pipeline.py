@@ -123,8 +123,8 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
     """Modulated trains (sliding, wobulated) among the pulses the constant-PRI loop left: their
     differences spread over a band of PRIs, so the candidates are the peaks of a coarse histogram
     (bins 5 % of the PRI wide, the first three difference levels), and the walk fits its predicting
-    line to the last 5 pulses only and widens its gate by 4 % of the PRI, so it follows the PRI as it
-    moves."""
+    line to the last 5 pulses only (where no candidate gives a train that way, a parabola to the last 8) and widens its
+    gate by 4 % of the PRI, so it follows the PRI as it moves."""
     chains: list[Chain] = []
     while free.sum() >= 3 * p.min_pulses and n_found + len(chains) < p.max_trains:
         tf = t[free]
@@ -134,12 +134,15 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
         h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
         centre = np.sqrt(edges[:-1] * edges[1:])
         found = None
-        for i in np.argsort(-h)[:5]:
-            if h[i] < p.min_pulses:
-                break
-            found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma, memory=5,
-                                    max_miss=p.max_miss, min_pulses=3 * p.min_pulses, min_fill=p.min_fill,
-                                    slack=0.04 * float(centre[i]))
+        for bend in (False, True):  # lines first, for every candidate; parabolas where none passes
+            for i in np.argsort(-h)[:5]:
+                if h[i] < p.min_pulses:
+                    break
+                found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma,
+                                        memory=8 if bend else 5, max_miss=p.max_miss, min_pulses=3 * p.min_pulses,
+                                        min_fill=p.min_fill, slack=0.04 * float(centre[i]), curve=bend)
+                if found is not None:
+                    break
             if found is not None:
                 break
         if found is None:
@@ -147,6 +150,32 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
         chains.append(found)
         free[found.index] = False
     return chains
+
+
+def merge_interleaved(t: np.ndarray, chains: list[Chain], sigma: float) -> list[Chain]:
+    """Off-lattice chains (residuals over 3 sigma: a drifting or modulated PRI) of one period within 2 %
+    that overlap in time are pieces of one train taken every m-th pulse (the walk at m times its PRI):
+    their union is one chain, its period counts from its gaps in units of the median gap."""
+    fits = [line_fit(t[c.index], c.k) for c in chains]
+    off = [i for i, f in enumerate(fits) if f.resid_std > 3 * sigma + 1e-3 * f.period]
+    used: set[int] = set()
+    out = [c for i, c in enumerate(chains) if i not in off]
+    for i in sorted(off, key=lambda i: fits[i].period):
+        if i in used:
+            continue
+        span = (t[chains[i].index[0]], t[chains[i].index[-1]])
+        mates = [j for j in off if j not in used and abs(fits[j].period - fits[i].period) <= 0.02 * fits[i].period
+                 and min(span[1], t[chains[j].index[-1]]) - max(span[0], t[chains[j].index[0]])
+                 > 0.5 * min(span[1] - span[0], t[chains[j].index[-1]] - t[chains[j].index[0]])]
+        used.update(mates)
+        if len(mates) < 2:
+            out.extend(chains[j] for j in mates)
+            continue
+        idx = np.unique(np.concatenate([chains[j].index for j in mates]))
+        gaps = np.diff(t[idx])
+        k = np.concatenate([[0], np.cumsum(np.maximum(1, np.round(gaps / np.median(gaps))))]).astype(np.int64)
+        out.append(Chain(idx, k, int(k[-1]) + 1))
+    return out
 
 
 class Group(NamedTuple):
@@ -225,7 +254,7 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
     labels = np.full(t.size, -1, dtype=np.int64)
     if t.size == 0:
         return Deinterleaving(labels, [])
-    chains = extract_chains(t, detect, p)
+    chains = merge_interleaved(t, extract_chains(t, detect, p), p.sigma)
     lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
     models, schedules = [], []
     for g in group_chains(t, chains, p.sigma):

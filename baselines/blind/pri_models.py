@@ -77,13 +77,16 @@ def stagger_model(frame: float, origins: np.ndarray, sigma: float) -> tuple[PRIM
 
 def _slots(levels: np.ndarray) -> np.ndarray:
     """The PRIs of one frame from the gaps between the sub-train phases found.  A gap within 1.5 times
-    the smallest, or within 10 % of a neighbour, is one PRI (a sweep's or wobulation's PRIs differ by
+    the smallest, or in a run of three alike, is one PRI (a sweep's or wobulation's PRIs differ by
     less, a dwell repeats its PRI); another holds
     q = round(gap / local) PRIs, q - 1 sub-trains missing, with `local` the mean of the nearest
     one-PRI gaps on either side, and is split into q equal PRIs."""
     m = levels.size
-    # a dwell holds a long PRI for several pulses: a gap like a neighbour's is a PRI, not a hole
-    like = np.minimum(np.abs(levels - np.roll(levels, 1)), np.abs(levels - np.roll(levels, -1))) <= 0.1 * levels
+    # a dwell holds a long PRI for several pulses: a gap in a run of three or more alike (within 10 %)
+    # is a PRI, not a hole (two holes side by side make two alike gaps)
+    step = np.abs(levels - np.roll(levels, -1)) <= 0.1 * levels  # level i like level i + 1
+    run3 = step & np.roll(step, 1)  # i - 1, i, i + 1 alike
+    like = run3 | np.roll(run3, 1) | np.roll(run3, -1)
     single = (levels <= 1.5 * levels.min()) | like
     idx = np.flatnonzero(single)
     q = np.ones(m, dtype=np.int64)
@@ -163,17 +166,31 @@ def cycle_model(levels: np.ndarray, tol: float) -> PRIModel:
     return min(options, key=lambda o: o[0])[1]
 
 
+def _sine_rss(n: np.ndarray, d: np.ndarray, f: float) -> tuple[float, float]:
+    x = np.stack([np.ones_like(d), np.cos(2 * np.pi * f * n), np.sin(2 * np.pi * f * n)], axis=1)
+    coef, *_ = np.linalg.lstsq(x, d, rcond=None)
+    return float(np.sum((d - x @ coef) ** 2)), float(math.hypot(coef[1], coef[2]) / coef[0])
+
+
 def _sine_fit(n: np.ndarray, d: np.ndarray, max_cycle: float) -> tuple[float, float, float]:
-    """(rss, depth, cycle) of the best sinusoid over a frequency grid."""
-    best = (math.inf, 0.0, 0.0)
-    mean = d.mean()
-    for f in np.linspace(1.0 / max_cycle, 1.0 / 3.0, 400):
-        x = np.stack([np.ones_like(d), np.cos(2 * np.pi * f * n), np.sin(2 * np.pi * f * n)], axis=1)
-        coef, *_ = np.linalg.lstsq(x, d, rcond=None)
-        rss = float(np.sum((d - x @ coef) ** 2))
-        if rss < best[0]:
-            best = (rss, float(math.hypot(coef[1], coef[2]) / mean), float(1.0 / f))
-    return best
+    """(rss, depth, cycle) of the best sinusoid: a frequency grid, then a golden-section search within
+    the best grid step."""
+    grid = np.linspace(1.0 / max_cycle, 1.0 / 3.0, 400)
+    rss = [_sine_rss(n, d, f)[0] for f in grid]
+    i = int(np.argmin(rss))
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    g = (math.sqrt(5) - 1) / 2
+    a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+    for _ in range(40):
+        if _sine_rss(n, d, a)[0] < _sine_rss(n, d, b)[0]:
+            hi, b = b, a
+            a = hi - g * (hi - lo)
+        else:
+            lo, a = a, b
+            b = lo + g * (hi - lo)
+    f = 0.5 * (lo + hi)
+    r, depth = _sine_rss(n, d, f)
+    return (r, depth, float(1.0 / f)) if r <= rss[i] else (rss[i], _sine_rss(n, d, grid[i])[1], float(1.0 / grid[i]))
 
 
 def _sawtooth_fit(n: np.ndarray, d: np.ndarray, max_cycle: int) -> tuple[float, float, float]:
@@ -205,7 +222,44 @@ def single_train_model(t: np.ndarray, k: np.ndarray, sigma: float) -> PRIModel:
     sine = _sine_fit(n, d, max_cycle)
     saw = _sawtooth_fit(n, d, max_cycle)
     rss, depth, cycle = min(sine, saw)
-    if rss > 0.5 * rss0:
-        return PRIModel("constant", fit.period)
-    kind = "sinusoidal" if sine <= saw else "sliding"
-    return PRIModel(kind, float(d.mean()), (), depth, cycle)
+    if rss <= 0.5 * rss0:
+        kind = "sinusoidal" if sine <= saw else "sliding"
+        return PRIModel(kind, float(d.mean()), (), depth, cycle)
+    dwell = _chain_dwell(n, d, sigma)
+    if dwell is not None:
+        return dwell
+    # no cycle explains the PRIs, yet they wander far beyond the TOA noise: a drifting PRI, whose
+    # successive PRIs are correlated (a steady PRI's, t_{n+1} - t_n with white TOA noise, are not: -1/2)
+    dc = d - d.mean()
+    if dc.size > 2 and float(dc[1:] @ dc[:-1]) > 0.5 * float(dc @ dc):
+        return PRIModel("drifting", float(d.mean()))
+    return PRIModel("constant", fit.period)
+
+
+def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> PRIModel | None:
+    """A dwell-and-switch train followed through its switches: its PRIs hold a value for c pulses, then
+    jump to the next of a few values.  Fitted over dwell lengths c and offsets (PRIs indexed by their
+    period count n); accepted when the dwell means explain the PRIs to their noise (2 sqrt(2) sigma per
+    PRI) and the dwell values repeat in a cycle (of 2 to 8 dwells)."""
+    best = None
+    n = np.asarray(n, dtype=np.int64)
+    for c in range(4, max(5, n.size // 6)):
+        for off in range(c):
+            dw = (n + off) // c
+            ids, inv = np.unique(dw, return_inverse=True)
+            means = np.bincount(inv, d) / np.bincount(inv)
+            rss = float(np.sum((d - means[inv]) ** 2))
+            if best is None or rss < best[0]:
+                best = (rss, c, off, ids, means)
+    if best is None or best[0] > d.size * (2.0 * math.sqrt(2) * sigma) ** 2:
+        return None
+    _, c, off, ids, means = best
+    tol = 4.0 * sigma + 0.02 * float(d.mean())
+    for m in range(2, 9):  # the smallest cycle of dwell values the means follow
+        pos = ids % m
+        vals = np.array([np.median(means[pos == j]) if np.any(pos == j) else np.nan for j in range(m)])
+        if np.all(np.isfinite(vals)) and np.all(np.abs(means - vals[pos]) <= tol) and np.ptp(vals) > tol:
+            start = int(ids[0] % m)
+            return PRIModel("dwell_switch", float(np.mean(vals)), tuple(float(v) for v in np.roll(vals, -start)), 0.0,
+                            float(c))
+    return None

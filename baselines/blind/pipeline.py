@@ -152,12 +152,18 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
     return chains
 
 
+def _off_lattice(fit, sigma: float) -> bool:
+    """A chain whose residuals about its line are 10 TOA-noise deviations (a drifting or modulated PRI
+    followed by the walk), not a lattice with a few wrong pulses (2 to 8 deviations)."""
+    return fit.resid_std > 10 * sigma + 1e-3 * fit.period
+
+
 def merge_interleaved(t: np.ndarray, chains: list[Chain], sigma: float) -> list[Chain]:
-    """Off-lattice chains (residuals over 3 sigma: a drifting or modulated PRI) of one period within 2 %
+    """Off-lattice chains (`_off_lattice`: a drifting or modulated PRI) of one period within 2 %
     that overlap in time are pieces of one train taken every m-th pulse (the walk at m times its PRI):
     their union is one chain, its period counts from its gaps in units of the median gap."""
     fits = [line_fit(t[c.index], c.k) for c in chains]
-    off = [i for i, f in enumerate(fits) if f.resid_std > 3 * sigma + 1e-3 * f.period]
+    off = [i for i, f in enumerate(fits) if _off_lattice(f, sigma)]
     used: set[int] = set()
     out = [c for i, c in enumerate(chains) if i not in off]
     for i in sorted(off, key=lambda i: fits[i].period):
@@ -192,8 +198,8 @@ class Group(NamedTuple):
 def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) -> list[Group]:
     """Chains whose periods are (integer multiples of) one another within 4 combined standard
     deviations are one train: the sub-trains of a stagger, or a constant train extracted in pieces at
-    multiples of its PRI.  Greedy, by increasing period.  A chain off a lattice (residuals over
-    3 sigma: a modulated train followed by the agile walk) is a train of its own.
+    multiples of its PRI.  Greedy, by increasing period.  A chain off a lattice (`_off_lattice`: a
+    modulated train followed by the agile walk) is a train of its own.
 
     A long periodic PRI (a sweep, wobulation or dwell cycle of M pulses) is found as M sub-trains at
     its frame; the walks also string its pulses from one sub-train to the next, at the frame minus one
@@ -203,11 +209,11 @@ def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) ->
     members: list[list[int]] = []
     for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
         f = fits[i]
-        if f.resid_std > 3 * sigma + 1e-3 * f.period:
+        if _off_lattice(f, sigma):
             members.append([i])
             continue
         for g in members:
-            if fits[g[0]].resid_std > 3 * sigma + 1e-3 * fits[g[0]].period:
+            if _off_lattice(fits[g[0]], sigma):
                 continue
             h = fits[g[0]]  # the group's smallest period
             n = round(f.period / h.period)

@@ -221,26 +221,32 @@ def single_train_model(t: np.ndarray, k: np.ndarray, sigma: float) -> PRIModel:
     max_cycle = int(min(200, max(6, one.size // 2)))
     sine = _sine_fit(n, d, max_cycle)
     saw = _sawtooth_fit(n, d, max_cycle)
-    rss, depth, cycle = min(sine, saw)
-    if rss <= 0.5 * rss0:
-        kind = "sinusoidal" if sine <= saw else "sliding"
-        return PRIModel(kind, float(d.mean()), (), depth, cycle)
+    # the shapes by BIC on the PRIs (rss floored at the differenced TOA noise, 2 sigma^2 per PRI); the
+    # best must explain half the PRI variance
+    options = [(sine[0], 4, PRIModel("sinusoidal", float(d.mean()), (), sine[1], sine[2])),
+               (saw[0], 4, PRIModel("sliding", float(d.mean()), (), saw[1], saw[2]))]
     dwell = _chain_dwell(n, d, sigma)
     if dwell is not None:
-        return dwell
-    # no cycle explains the PRIs, yet they wander far beyond the TOA noise: a drifting PRI, whose
-    # successive PRIs are correlated (a steady PRI's, t_{n+1} - t_n with white TOA noise, are not: -1/2)
-    dc = d - d.mean()
-    if dc.size > 2 and float(dc[1:] @ dc[:-1]) > 0.5 * float(dc @ dc):
+        options.append((dwell[0], len(dwell[1].levels) + 2, dwell[1]))
+    size = d.size
+    rss, _, model = min(options, key=lambda o: size * math.log(max(o[0] / size, 2 * sigma**2)) + o[1] * math.log(size))
+    if rss <= 0.5 * rss0:
+        return model
+    # no cycle explains the PRIs, yet their means over blocks of B PRIs wander beyond the TOA noise
+    # (a steady PRI's block mean telescopes to (w_end - w_start) / B: std sqrt(2) sigma / B): drifting
+    b = 10
+    blocks = d[: d.size // b * b].reshape(-1, b).mean(1)
+    spread = 1.4826 * float(np.median(np.abs(blocks - np.median(blocks))))
+    if blocks.size >= 4 and spread > 3.0 * math.sqrt(2) * sigma / b:
         return PRIModel("drifting", float(d.mean()))
     return PRIModel("constant", fit.period)
 
 
-def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> PRIModel | None:
+def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, PRIModel] | None:
     """A dwell-and-switch train followed through its switches: its PRIs hold a value for c pulses, then
     jump to the next of a few values.  Fitted over dwell lengths c and offsets (PRIs indexed by their
-    period count n); accepted when the dwell means explain the PRIs to their noise (2 sqrt(2) sigma per
-    PRI) and the dwell values repeat in a cycle (of 2 to 8 dwells)."""
+    period count n); (rss, model) when the dwell means explain the PRIs to their noise (2 sqrt(2) sigma
+    per PRI) and the dwell values repeat in a cycle (of 2 to 8 dwells), else None."""
     best = None
     n = np.asarray(n, dtype=np.int64)
     for c in range(4, max(5, n.size // 6)):
@@ -249,17 +255,19 @@ def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> PRIModel | None:
             ids, inv = np.unique(dw, return_inverse=True)
             means = np.bincount(inv, d) / np.bincount(inv)
             rss = float(np.sum((d - means[inv]) ** 2))
-            if best is None or rss < best[0]:
-                best = (rss, c, off, ids, means)
+            # BIC over the dwell lengths (a divisor of the true length fits as well, with more dwells)
+            score = d.size * math.log(max(rss / d.size, 1e-300)) + ids.size * math.log(d.size)
+            if best is None or score < best[5]:
+                best = (rss, c, off, ids, means, score)
     if best is None or best[0] > d.size * (2.0 * math.sqrt(2) * sigma) ** 2:
         return None
-    _, c, off, ids, means = best
+    _, c, off, ids, means, _ = best
     tol = 4.0 * sigma + 0.02 * float(d.mean())
     for m in range(2, 9):  # the smallest cycle of dwell values the means follow
         pos = ids % m
         vals = np.array([np.median(means[pos == j]) if np.any(pos == j) else np.nan for j in range(m)])
         if np.all(np.isfinite(vals)) and np.all(np.abs(means - vals[pos]) <= tol) and np.ptp(vals) > tol:
             start = int(ids[0] % m)
-            return PRIModel("dwell_switch", float(np.mean(vals)), tuple(float(v) for v in np.roll(vals, -start)), 0.0,
-                            float(c))
+            return best[0], PRIModel("dwell_switch", float(np.mean(vals)), tuple(float(v) for v in np.roll(vals, -start)),
+                                     0.0, float(c))
     return None

@@ -246,10 +246,10 @@ def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, PRI
     """A dwell-and-switch train followed through its switches: its PRIs hold a value for c pulses, then
     jump to the next of a few values.  Fitted over dwell lengths c and offsets (PRIs indexed by their
     period count n); (rss, model) when the dwell means explain the PRIs to their noise (2 sqrt(2) sigma
-    per PRI) and the dwell values repeat in a cycle (of 2 to 8 dwells), else None."""
+    per PRI) and the dwell values repeat in a cycle (of 2 to 8 dwells of 8 or more pulses, seen twice), else None."""
     best = None
     n = np.asarray(n, dtype=np.int64)
-    for c in range(4, max(5, n.size // 6)):
+    for c in range(8, max(9, n.size // 6)):  # dwells of 8 pulses or more
         for off in range(c):
             dw = (n + off) // c
             ids, inv = np.unique(dw, return_inverse=True)
@@ -266,7 +266,8 @@ def _chain_dwell(n: np.ndarray, d: np.ndarray, sigma: float) -> tuple[float, PRI
     for m in range(2, 9):  # the smallest cycle of dwell values the means follow
         pos = ids % m
         vals = np.array([np.median(means[pos == j]) if np.any(pos == j) else np.nan for j in range(m)])
-        if np.all(np.isfinite(vals)) and np.all(np.abs(means - vals[pos]) <= tol) and np.ptp(vals) > tol:
+        if ids.size >= 2 * m and np.all(np.isfinite(vals)) and np.all(np.abs(means - vals[pos]) <= tol) \
+                and np.ptp(vals) > tol:  # the cycle seen twice
             start = int(ids[0] % m)
             return best[0], PRIModel("dwell_switch", float(np.mean(vals)), tuple(float(v) for v in np.roll(vals, -start)),
                                      0.0, float(c))

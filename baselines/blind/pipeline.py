@@ -203,8 +203,9 @@ def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) ->
 
     A long periodic PRI (a sweep, wobulation or dwell cycle of M pulses) is found as M sub-trains at
     its frame; the walks also string its pulses from one sub-train to the next, at the frame minus one
-    PRI or so.  Such chains, within 5 % of the frame of a group of 8 or more sub-trains and of no
-    group of their own larger than 3 chains, join it as `extra`."""
+    PRI or so.  Such chains, within 5 % of the frame of a group of 8 or more sub-trains that
+    `stagger_model` finds modulated, and of no group of their own larger than 3 chains, join it as
+    `extra`."""
     fits = [line_fit(t[c.index], c.k) for c in chains]
     members: list[list[int]] = []
     for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
@@ -232,7 +233,11 @@ def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) ->
         frame = float(np.sum(w * est) / w.sum())
         origins = np.concatenate([fits[i].origin + fits[i].period * np.arange(m) for i, m in zip(g, mult)])
         groups.append(Group(g, frame, origins))
-    big = [j for j, g in enumerate(groups) if g.origins.size >= 8]
+    # hosts: groups of 8 or more sub-trains whose frame holds a sweep, wobulation or dwell cycle (not a
+    # constant train extracted at multiples of its PRI, whose frame another train's period may be near)
+    big = [j for j, g in enumerate(groups) if g.origins.size >= 8 and math.isfinite(sigma) and stagger_model(
+        g.frame, g.origins, max([sigma] + [fits[i].resid_std for i in g.chains]))[0].kind in
+        ("sliding", "sinusoidal", "dwell_switch")]
     out, extra = [], {j: [] for j in big}
     for j, g in enumerate(groups):
         host = None if j in extra or len(g.chains) > 3 else next(
@@ -279,7 +284,7 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
             model = single_train_model(t[c.index], c.k, p.sigma)
             models.append(model)
             # a lattice only for a train that sits on one (a joined or modulated train: its own pulses)
-            on_lattice = model.kind == "constant" and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
+            on_lattice = model.kind in ("constant", "drifting") and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
             sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if on_lattice else t[c.index]
         schedules.append(np.sort(sched[(sched >= lo) & (sched <= hi)]))
     if align and schedules:

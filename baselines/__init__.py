@@ -50,11 +50,13 @@ POLICIES = (
     PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=BLIND, required=("model",),
                description="a Turing Deinterleaving Challenge Deinterleaver model (model=module:Name, runs that "
                            "code), labelling windows of `window` pulses"),
-    PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND,
+    # cdif/sdif/pri-transform version 2: long periodic PRIs (sweep, wobulation, dwell) kept one train with
+    # their model; drifting pieces merged; a parabola walk for deep wobulation
+    PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND, version=2,
                description="blind: Mardia's CDIF histogram (1989) + sequence search + re-association (window=1000)"),
-    PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND,
+    PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND, version=2,
                description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association"),
-    PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND,
+    PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND, version=2,
                description="blind: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search"),
     PolicyInfo("dbscan", "baselines.blind.clustering:DBSCANPolicy", modes=BLIND,
                description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)"),

@@ -1,9 +1,11 @@
 """PRI modulation identification: the model a policy found for each train, and its score.
 
 A blind policy reports, per label track, a `PRIModel`: the kind (constant, stagger, sliding,
-sinusoidal) and its parameters, in the conventions of `deint_env.scenario.Modulation` (period = the
-mean PRI T; stagger levels = the sub-PRIs in emission order, T * pattern / mean(pattern); sliding and
-sinusoidal: depth (relative peak-to-peak sweep / relative amplitude) and cycle (pulses)).
+sinusoidal, dwell_switch, drifting) and its parameters, in the conventions of
+`deint_env.scenario.Modulation` (period = the mean PRI T; stagger levels = the sub-PRIs in emission
+order, T * pattern / mean(pattern); dwell_switch: the dwell PRIs in that convention as levels and the
+pulses per dwell as cycle; sliding and sinusoidal: depth (relative peak-to-peak sweep / relative
+amplitude) and cycle (pulses); drifting: the period alone).
 `modulation_scores` compares them with the episode's truth: the share of sources whose model kind is
 right, and the relative errors of the parameters where it is.
 """
@@ -18,13 +20,13 @@ import numpy as np
 
 from deint_env.scenario import ScenarioSpec
 
-KINDS = ("constant", "stagger", "sliding", "sinusoidal")
+KINDS = ("constant", "stagger", "sliding", "sinusoidal", "dwell_switch", "drifting")
 
 
 @dataclass(frozen=True)
 class PRIModel:
-    """One train's PRI model.  `levels`: stagger sub-PRIs (empty otherwise); `depth`, `cycle`: sliding
-    / sinusoidal only (0 otherwise)."""
+    """One train's PRI model.  `levels`: stagger sub-PRIs or dwell PRIs (empty otherwise); `depth`:
+    sliding / sinusoidal only; `cycle`: sliding / sinusoidal / dwell_switch only (0 otherwise)."""
 
     kind: str
     period: float
@@ -38,14 +40,14 @@ class PRIModel:
 
 
 def true_models(spec: ScenarioSpec, period: np.ndarray) -> list[PRIModel]:
-    """The true PRI model of every source of an episode (period: the episode's drawn T_i).
-    dwell_switch and drifting sources have no blind model here (kind kept, parameters empty)."""
+    """The true PRI model of every source of an episode (period: the episode's drawn T_i)."""
     out = []
     for src, t in zip(spec.sources, np.asarray(period, dtype=np.float64).tolist()):
         m = src.modulation
-        if m.kind == "stagger":
+        if m.kind in ("stagger", "dwell_switch"):
             pat = np.asarray(m.pattern)
-            out.append(PRIModel("stagger", t, tuple((t * pat / pat.mean()).tolist())))
+            out.append(PRIModel(m.kind, t, tuple((t * pat / pat.mean()).tolist()), 0.0,
+                                float(m.cycle) if m.kind == "dwell_switch" else 0.0))
         elif m.kind in ("sliding", "sinusoidal"):
             out.append(PRIModel(m.kind, t, (), float(m.depth), float(m.cycle)))
         else:
@@ -65,8 +67,9 @@ def _cyclic_level_error(found: Sequence[float], true: Sequence[float]) -> float:
 class ModulationScore:
     """kind_accuracy: share of sources (with a track) whose model kind is right; n_scored: how many
     sources had a track; the parameter errors are means over the rightly identified sources of their
-    kind (NaN when there is none): period (all kinds), stagger levels (under the best rotation, NaN
-    if the level count is wrong), depth and cycle (relative)."""
+    kind (NaN when there is none): period (all kinds), stagger and dwell levels (under the best
+    rotation, NaN if the level count is wrong), depth (sliding, sinusoidal) and cycle (those and
+    dwell_switch), relative."""
 
     kind_accuracy: float
     n_scored: int
@@ -99,10 +102,11 @@ def modulation_scores(found: Sequence[PRIModel | None], truth: Sequence[PRIModel
         if not ok:
             continue
         period.append(abs(model.period - true.period) / true.period)
-        if true.kind == "stagger":
+        if true.kind in ("stagger", "dwell_switch"):
             levels.append(_cyclic_level_error(model.levels, true.levels))
         if true.kind in ("sliding", "sinusoidal"):
             depth.append(abs(model.depth - true.depth) / true.depth)
+        if true.kind in ("sliding", "sinusoidal", "dwell_switch"):
             cycle.append(abs(model.cycle - true.cycle) / true.cycle)
 
     def avg(x: list[float]) -> float:

@@ -254,3 +254,90 @@ def test_modulation_identified_on_a_simulated_stagger():
     only = episode_modulation_scores(policy.modulations(), spec, ep.truth.period, res.labels, ep.source,
                                      ep.n_labels, modulated_only=True)
     assert only.n_scored == 1 and only.kind_accuracy == 1.0
+
+
+def _cycle(kind: str, rng) -> np.ndarray:
+    """One frame's PRIs (mean 13) of a long periodic modulation, rotated, with level noise."""
+    n = np.arange(60)
+    pri = {"sliding": 13 * (1 + 0.3 * ((n[:32] % 32) / 31 - 0.5)),
+           "sinusoidal": 13 * (1 + 0.3 * np.sin(2 * np.pi * n[:50] / 50 + 1)),
+           "dwell_switch": 13 * np.repeat([1.0, 1.4, 0.8], 20) / np.mean([1.0, 1.4, 0.8])}[kind]
+    return np.roll(pri, 5) + rng.normal(0, 0.04, pri.size)
+
+
+@pytest.mark.parametrize("kind", ["sliding", "sinusoidal", "dwell_switch"])
+def test_cycle_model_tells_long_frames_apart(kind):
+    # a sweep, a wobulation and a dwell cycle found as sub-trains of their frame: each is told apart from
+    # a many-level stagger, also with two sub-trains missing (their gaps hold two PRIs)
+    from baselines.blind.pri_models import cycle_model
+
+    levels = _cycle(kind, np.random.default_rng(1))
+    holed = np.delete(levels, [3, 6])
+    holed[2] += levels[3]
+    holed[4] += levels[6]
+    for lv in (levels, holed):
+        m = cycle_model(lv, 0.5)
+        assert m.kind == kind and m.period == pytest.approx(13.0, rel=0.01)
+        if kind == "dwell_switch":
+            assert m.cycle == 20 and sorted(m.levels) == pytest.approx(sorted(13 * np.array([1.0, 1.4, 0.8]) / 1.0667),
+                                                                         rel=0.01)
+        else:
+            assert m.depth == pytest.approx(0.3, rel=0.03) and m.cycle == (32 if kind == "sliding" else 50)
+    few = cycle_model(np.array([10.0, 13.0, 17.0]), 0.5)  # a 3-level stagger stays one
+    assert few.kind == "stagger" and few.levels == (10.0, 13.0, 17.0)
+
+
+def test_single_train_drifting_and_dwell():
+    from baselines.blind.pri_models import single_train_model
+
+    rng = np.random.default_rng(3)
+    drift = 13 + np.cumsum(rng.normal(0, 0.02, 400))  # MK94's alpha = 1 source: a random-walk PRI
+    t = np.concatenate([[0.0], np.cumsum(drift)]) + rng.normal(0, 0.1, 401)
+    assert single_train_model(t, np.arange(401), 0.1).kind == "drifting"
+    dwell = np.tile(np.repeat([12.0, 17.0, 10.0], 20), 7)
+    t = np.concatenate([[0.0], np.cumsum(dwell)]) + rng.normal(0, 0.1, dwell.size + 1)
+    m = single_train_model(t, np.arange(t.size), 0.1)
+    assert m.kind == "dwell_switch" and m.cycle == 20
+    assert sorted(m.levels) == pytest.approx([10.0, 12.0, 17.0], abs=0.05)
+    t = np.arange(400) * 13.0 + rng.normal(0, 0.1, 400)
+    assert single_train_model(t, np.arange(400), 0.1).kind == "constant"
+
+
+def test_pieces_of_a_drifting_train_are_merged():
+    # a drifting train walked at 3 times its PRI gives three off-lattice chains: they are one train
+    from baselines.blind.pipeline import merge_interleaved
+    from baselines.blind.search import Chain
+
+    rng = np.random.default_rng(4)
+    t = np.concatenate([[0.0], np.cumsum(13 + np.cumsum(rng.normal(0, 0.02, 299)))])
+    chains = [Chain(np.arange(r, 300, 3), np.arange(len(range(r, 300, 3))), len(range(r, 300, 3))) for r in range(3)]
+    merged = merge_interleaved(t, chains, 0.05)
+    assert len(merged) == 1 and merged[0].index.tolist() == list(range(300))
+    assert merged[0].k.tolist() == list(range(300))
+
+
+def test_dwell_switch_scores():
+    truth = [PRIModel("dwell_switch", 13.0, (12.0, 17.0, 10.0), 0.0, 20.0)]
+    s = modulation_scores([PRIModel("dwell_switch", 13.1, (17.0, 10.0, 12.3), 0.0, 19.0)], truth, np.array([0]))
+    assert s.kind_accuracy == 1.0 and s.level_rel_error == pytest.approx(0.3 / 12 / 3)  # the best rotation
+    assert s.cycle_rel_error == pytest.approx(0.05) and np.isnan(s.depth_rel_error)
+
+
+def test_sliding_identified_on_a_simulated_episode():
+    # agile-v0's saw-tooth sweep (depth 0.3, 32 pulses) made blind: found as 32 sub-trains of its frame,
+    # identified as sliding with its depth and cycle
+    from deint_env.modulation import episode_modulation_scores
+    from deint_env.scenario import ScenarioSpec
+    from deint_env.simulate import simulate
+    from deint_env.suites import find_entry
+
+    d = find_entry("agile-v0/agile-sliding").spec.to_dict()
+    d.update(priors={"kind": "none"}, blind=True, label_budget=8)
+    spec = ScenarioSpec.from_dict(d)
+    ep = simulate(spec, 1000000)
+    policy = make_policy("cdif")
+    res = play(policy, ep, clustering=False)
+    s = episode_modulation_scores(policy.modulations(), spec, ep.truth.period, res.labels, ep.source, ep.n_labels,
+                                  modulated_only=True)
+    assert s.n_scored == 1 and s.kind_accuracy == 1.0
+    assert s.depth_rel_error < 0.05 and s.cycle_rel_error == 0.0 and s.period_rel_error < 1e-3

@@ -123,8 +123,8 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
     """Modulated trains (sliding, wobulated) among the pulses the constant-PRI loop left: their
     differences spread over a band of PRIs, so the candidates are the peaks of a coarse histogram
     (bins 5 % of the PRI wide, the first three difference levels), and the walk fits its predicting
-    line to the last 5 pulses only and widens its gate by 4 % of the PRI, so it follows the PRI as it
-    moves."""
+    line to the last 5 pulses only (where no candidate gives a train that way, a parabola to the last 8) and widens its
+    gate by 4 % of the PRI, so it follows the PRI as it moves."""
     chains: list[Chain] = []
     while free.sum() >= 3 * p.min_pulses and n_found + len(chains) < p.max_trains:
         tf = t[free]
@@ -134,12 +134,15 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
         h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
         centre = np.sqrt(edges[:-1] * edges[1:])
         found = None
-        for i in np.argsort(-h)[:5]:
-            if h[i] < p.min_pulses:
-                break
-            found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma, memory=5,
-                                    max_miss=p.max_miss, min_pulses=3 * p.min_pulses, min_fill=p.min_fill,
-                                    slack=0.04 * float(centre[i]))
+        for bend in (False, True):  # lines first, for every candidate; parabolas where none passes
+            for i in np.argsort(-h)[:5]:
+                if h[i] < p.min_pulses:
+                    break
+                found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma,
+                                        memory=8 if bend else 5, max_miss=p.max_miss, min_pulses=3 * p.min_pulses,
+                                        min_fill=p.min_fill, slack=0.04 * float(centre[i]), curve=bend)
+                if found is not None:
+                    break
             if found is not None:
                 break
         if found is None:
@@ -149,24 +152,70 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
     return chains
 
 
+def _off_lattice(fit, sigma: float) -> bool:
+    """A chain whose residuals about its line are 10 TOA-noise deviations (a drifting or modulated PRI
+    followed by the walk), not a lattice with a few wrong pulses (2 to 8 deviations)."""
+    return fit.resid_std > 10 * sigma + 1e-3 * fit.period
+
+
+def merge_interleaved(t: np.ndarray, chains: list[Chain], sigma: float) -> list[Chain]:
+    """Off-lattice chains (`_off_lattice`: a drifting or modulated PRI) of one period within 2 %
+    that overlap in time are pieces of one train taken every m-th pulse (the walk at m times its PRI):
+    their union is one chain, its period counts from its gaps in units of the median gap."""
+    fits = [line_fit(t[c.index], c.k) for c in chains]
+    off = [i for i, f in enumerate(fits) if _off_lattice(f, sigma)]
+    used: set[int] = set()
+    out = [c for i, c in enumerate(chains) if i not in off]
+    for i in sorted(off, key=lambda i: fits[i].period):
+        if i in used:
+            continue
+        span = (t[chains[i].index[0]], t[chains[i].index[-1]])
+        mates = [j for j in off if j not in used and abs(fits[j].period - fits[i].period) <= 0.02 * fits[i].period
+                 and min(span[1], t[chains[j].index[-1]]) - max(span[0], t[chains[j].index[0]])
+                 > 0.5 * min(span[1] - span[0], t[chains[j].index[-1]] - t[chains[j].index[0]])]
+        used.update(mates)
+        if len(mates) < 2:
+            out.extend(chains[j] for j in mates)
+            continue
+        idx = np.unique(np.concatenate([chains[j].index for j in mates]))
+        gaps = np.diff(t[idx])
+        k = np.concatenate([[0], np.cumsum(np.maximum(1, np.round(gaps / np.median(gaps))))]).astype(np.int64)
+        out.append(Chain(idx, k, int(k[-1]) + 1))
+    return out
+
+
 class Group(NamedTuple):
     """Chains that are one train: a frame period F (a multiple of every chain's period) and the phase
-    of every sub-train of period F they hold (a chain of period F / n holds n)."""
+    of every sub-train of period F they hold (a chain of period F / n holds n); `extra`: chains of the
+    train that are no sub-train of it (labelled with it, not modelled)."""
 
     chains: list[int]
     frame: float
     origins: np.ndarray
+    extra: tuple[int, ...] = ()
 
 
-def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
+def group_chains(t: np.ndarray, chains: list[Chain], sigma: float = math.inf) -> list[Group]:
     """Chains whose periods are (integer multiples of) one another within 4 combined standard
     deviations are one train: the sub-trains of a stagger, or a constant train extracted in pieces at
-    multiples of its PRI.  Greedy, by increasing period."""
+    multiples of its PRI.  Greedy, by increasing period.  A chain off a lattice (`_off_lattice`: a
+    modulated train followed by the agile walk) is a train of its own.
+
+    A long periodic PRI (a sweep, wobulation or dwell cycle of M pulses) is found as M sub-trains at
+    its frame; the walks also string its pulses from one sub-train to the next, at the frame minus one
+    PRI or so.  Such chains, within 5 % of the frame of a group of 8 or more sub-trains that
+    `stagger_model` finds modulated, and of no group of their own larger than 3 chains, join it as
+    `extra`."""
     fits = [line_fit(t[c.index], c.k) for c in chains]
     members: list[list[int]] = []
     for i in sorted(range(len(fits)), key=lambda i: fits[i].period):
         f = fits[i]
+        if _off_lattice(f, sigma):
+            members.append([i])
+            continue
         for g in members:
+            if _off_lattice(fits[g[0]], sigma):
+                continue
             h = fits[g[0]]  # the group's smallest period
             n = round(f.period / h.period)
             if n >= 1 and abs(f.period - n * h.period) <= 4 * math.hypot(f.period_std, n * h.period_std) \
@@ -184,7 +233,20 @@ def group_chains(t: np.ndarray, chains: list[Chain]) -> list[Group]:
         frame = float(np.sum(w * est) / w.sum())
         origins = np.concatenate([fits[i].origin + fits[i].period * np.arange(m) for i, m in zip(g, mult)])
         groups.append(Group(g, frame, origins))
-    return groups
+    # hosts: groups of 8 or more sub-trains whose frame holds a sweep, wobulation or dwell cycle (not a
+    # constant train extracted at multiples of its PRI, whose frame another train's period may be near)
+    big = [j for j, g in enumerate(groups) if g.origins.size >= 8 and math.isfinite(sigma) and stagger_model(
+        g.frame, g.origins, max([sigma] + [fits[i].resid_std for i in g.chains]))[0].kind in
+        ("sliding", "sinusoidal", "dwell_switch")]
+    out, extra = [], {j: [] for j in big}
+    for j, g in enumerate(groups):
+        host = None if j in extra or len(g.chains) > 3 else next(
+            (b for b in big if abs(g.frame - groups[b].frame) <= 0.05 * groups[b].frame), None)
+        if host is None:
+            out.append(j)
+        else:
+            extra[host].extend(g.chains)
+    return [groups[j]._replace(extra=tuple(extra.get(j, ()))) for j in out]
 
 
 def _lattice(origin: float, period: float, t0: float, t1: float) -> np.ndarray:
@@ -203,11 +265,11 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
     labels = np.full(t.size, -1, dtype=np.int64)
     if t.size == 0:
         return Deinterleaving(labels, [])
-    chains = extract_chains(t, detect, p)
+    chains = merge_interleaved(t, extract_chains(t, detect, p), p.sigma)
     lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
     models, schedules = [], []
-    for g in group_chains(t, chains):
-        for i in g.chains:
+    for g in group_chains(t, chains, p.sigma):
+        for i in g.chains + list(g.extra):
             labels[chains[i].index] = len(models)
         c = chains[g.chains[0]]
         if g.origins.size > 1:
@@ -222,7 +284,7 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
             model = single_train_model(t[c.index], c.k, p.sigma)
             models.append(model)
             # a lattice only for a train that sits on one (a joined or modulated train: its own pulses)
-            on_lattice = model.kind == "constant" and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
+            on_lattice = model.kind in ("constant", "drifting") and line_fit(t[c.index], c.k).resid_std <= 3 * p.sigma
             sched = _lattice(g.origins[0], g.frame, *_span(t, c, g.frame)) if on_lattice else t[c.index]
         schedules.append(np.sort(sched[(sched >= lo) & (sched <= hi)]))
     if align and schedules:

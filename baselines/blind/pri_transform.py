@@ -27,6 +27,7 @@ import numba
 import numpy as np
 
 from baselines.blind.histograms import Candidate
+from deint_env.errors import DeintError
 
 
 @numba.njit(cache=True)
@@ -111,3 +112,85 @@ def pri_transform_candidates(t: np.ndarray, pri_min: float, pri_max: float, widt
     # the overlapping bins make a flat-topped peak eps tau wide: the PRI is known to about that
     return [Candidate(float(centres[i]), float(eps * centres[i] + sigma + width), float(mag[i] / thr[i]))
             for i in peaks]
+
+
+@numba.njit(cache=True)
+def _transform_nk(t, centres, eps, zeta0):  # pragma: no cover - numba
+    """The paper's own origin rule on K bins of relative half-width eps (see `pri_transform_nk`)."""
+    kb = centres.size
+    d_re = np.zeros(kb)
+    d_im = np.zeros(kb)
+    count = np.zeros(kb)
+    origin = np.full(kb, np.nan)
+    step = centres[1] - centres[0]
+    lo = centres[0] - step / 2
+    for j in range(1, t.size):
+        for m in range(j - 1, -1, -1):
+            tau = t[j] - t[m]
+            if tau > centres[kb - 1] * (1.0 + eps):
+                break
+            # bin k takes tau when (1 - eps) tau_k <= tau <= (1 + eps) tau_k
+            k0 = max(int(math.ceil((tau / (1.0 + eps) - lo) / step - 0.5)), 0)
+            k1 = min(int(math.floor((tau / (1.0 - eps) - lo) / step - 0.5)), kb - 1)
+            for k in range(k0, k1 + 1):
+                if math.isnan(origin[k]):
+                    origin[k] = t[j]
+                # move the origin to t_j when t_j lies a whole number nu of bin periods after it: one
+                # period from a pair that starts at the origin, or nu >= 2 within relative error zeta0
+                eta0 = (t[j] - origin[k]) / centres[k]
+                nu = math.floor(eta0 + 0.5)
+                if (nu == 1 and t[m] == origin[k]) or (nu >= 2 and abs(eta0 / nu - 1.0) <= zeta0):
+                    origin[k] = t[j]
+                ph = 2.0 * math.pi * (t[j] - origin[k]) / centres[k]
+                d_re[k] += math.cos(ph)
+                d_im[k] += math.sin(ph)
+                count[k] += 1.0
+    return np.sqrt(d_re * d_re + d_im * d_im), count
+
+
+def pri_transform_nk(t: np.ndarray, tau_min: float, tau_max: float, n_bins: int, eps: float,
+                     zeta0: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(bin centres, |D_k|, pair counts C_k, bin widths b_k = 2 eps tau_k) of the improved transform as the
+    paper states it: K bins tau_k = tau_min + (k - 1/2)(tau_max - tau_min)/K, overlapping (bin k takes every
+    difference within eps tau_k of tau_k, eps the largest relative jitter), phases (t_n - O_k) / tau_k from
+    a per-bin origin O_k that is the bin's first pair's later pulse and is moved to t_n whenever t_n lies
+    about a whole number of bin periods after it (`_transform_nk`).  Resetting the origin at the train's own
+    pulses keeps the phase of a mean PRI near 0 even on a coarse grid of K bins, where `pri_transform`'s
+    whole-period steps need bins within T^2 / (4 D) of the PRI."""
+    if not 0.0 < eps < 1.0 or n_bins < 2 or not tau_max > tau_min >= 0.0:
+        raise DeintError("pri_transform_nk needs 0 < eps < 1, n_bins >= 2 and 0 <= tau_min < tau_max")
+    t = np.ascontiguousarray(np.sort(t), dtype=np.float64)
+    centres = tau_min + (np.arange(n_bins) + 0.5) * (tau_max - tau_min) / n_bins
+    mag, count = _transform_nk(t, centres, float(eps), float(zeta0))
+    return centres, mag, count, 2.0 * eps * centres
+
+
+def original_pri_transform(t: np.ndarray, tau_min: float, tau_max: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(bin centres, |D_k|) of the original transform on K disjoint bins, phases 2 pi t_n / (t_n - t_m) from t = 0."""
+    t = np.ascontiguousarray(np.sort(t), dtype=np.float64)
+    width = (tau_max - tau_min) / n_bins
+    centres = tau_min + (np.arange(n_bins) + 0.5) * width
+    i, j = np.triu_indices(t.size, 1)
+    tau = t[j] - t[i]
+    keep = (tau > tau_min) & (tau <= tau_max)
+    k = np.minimum(((tau[keep] - tau_min) / width).astype(np.int64), n_bins - 1)
+    d = np.bincount(k, np.cos(2 * np.pi * t[j][keep] / tau[keep]), n_bins) \
+        + 1j * np.bincount(k, np.sin(2 * np.pi * t[j][keep] / tau[keep]), n_bins)
+    return centres, np.abs(d)
+
+
+def nk_thresholds(t: np.ndarray, centres: np.ndarray, count: np.ndarray, widths: np.ndarray, alpha: float = 0.3,
+                  beta: float = 0.15, gamma: float = 4.0) -> np.ndarray:
+    """The paper's detection level per bin: max(alpha T / tau_k, beta C_k, gamma sqrt(T rho^2 b_k))."""
+    t_obs = float(t.max() - t.min())
+    rho = t.size / t_obs
+    return np.maximum.reduce([alpha * t_obs / centres, beta * count, gamma * np.sqrt(t_obs * rho**2 * widths)])
+
+
+def threshold_peaks(centres: np.ndarray, mag: np.ndarray, thr: np.ndarray) -> np.ndarray:
+    """One PRI per run of adjacent bins over the threshold (overlapping bins spread a peak over
+    about 2 eps tau / step bins): the centre of the run's largest bin."""
+    over = np.concatenate([[False], mag > thr, [False]])
+    starts = np.flatnonzero(~over[:-1] & over[1:])
+    ends = np.flatnonzero(over[:-1] & ~over[1:])
+    return np.array([centres[s + np.argmax(mag[s:e])] for s, e in zip(starts, ends)])

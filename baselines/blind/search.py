@@ -25,7 +25,7 @@ class Chain(NamedTuple):
 
 
 @numba.njit(cache=True)
-def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory, slack):  # pragma: no cover - numba
+def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory, slack, curve):  # pragma: no cover - numba
     n = t.size
     idx = np.empty(n, np.int64)
     ks = np.empty(n, np.int64)
@@ -57,6 +57,27 @@ def _walk(t, free, seed, pri, pri_unc, sigma, max_miss, memory, slack):  # pragm
                 skt += dk * (t[idx[q]] - mt)
             slope = skt / skk
             pred = mt + slope * (k - mk)
+            if curve and cnt >= 6:
+                # a parabola through them instead: a PRI that keeps changing (wobulation) is followed
+                # without the lag of a line's mean slope
+                s3 = 0.0
+                s4 = 0.0
+                sk2t = 0.0
+                for q in range(lo, m):
+                    dk = ks[q] - mk
+                    s3 += dk * dk * dk
+                    s4 += dk * dk * dk * dk
+                    sk2t += (dk * dk - skk / cnt) * (t[idx[q]] - mt)
+                # t - mt = b dk + c (dk^2 - skk / cnt): the normal equations of the centred regressors
+                a11 = skk
+                a12 = s3
+                a22 = s4 - skk * skk / cnt
+                det = a11 * a22 - a12 * a12
+                if det > 1e-12 * a11 * a22:
+                    b = (a22 * skt - a12 * sk2t) / det
+                    c = (a11 * sk2t - a12 * skt) / det
+                    dk = k - mk
+                    pred = mt + b * dk + c * (dk * dk - skk / cnt)
             unc = min(pri_unc, 4.0 * sigma / (ks[m - 1] - ks[lo]))
         else:
             pred = t[idx[0]] + pri * k
@@ -98,9 +119,10 @@ def accept(chain: Chain, min_pulses: int, min_fill: float, chance: float = 0.0) 
 
 def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float, sigma: float, *,
                     n_seeds: int = 16, max_miss: int = 3, memory: int = 16, min_pulses: int = 6,
-                    min_fill: float = 0.8, slack: float = 0.0) -> Chain | None:
+                    min_fill: float = 0.8, slack: float = 0.0, curve: bool = False) -> Chain | None:
     """(memory: how many recent pulses the predicting line is fitted to; a short memory and some
-    `slack` (a PRI change per pulse the gate allows) follow a modulated PRI.)"""
+    `slack` (a PRI change per pulse the gate allows) follow a modulated PRI; `curve`: `curve`: predict
+    from a parabola through them (from 6 pulses on) instead of a line.)"""
     """The longest acceptable train of PRI ~ `pri` (+- `pri_unc`) among the free pulses, or None.
 
     Seeds are the free pulses in the first 1.5 PRI after the first free pulse (a train present from
@@ -115,7 +137,7 @@ def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float,
     best: Chain | None = None
     for seed in np.unique(np.concatenate([head, rest])):
         idx, ks = _walk(t, free, int(seed), float(pri), float(pri_unc), float(sigma), max_miss, memory,
-                        float(slack))
+                        float(slack), bool(curve))
         chain = Chain(idx, ks, int(ks[-1]) + 1)
         if accept(chain, min_pulses, min_fill, chance) and (best is None or idx.size > best.index.size):
             best = chain

@@ -17,7 +17,7 @@ from typing import Any, Callable
 from deint_env.errors import DeintError
 
 MODULES = ("baselines.reproduce.mk94", "baselines.reproduce.mk94_pt", "baselines.reproduce.cm00",
-           "baselines.reproduce.dm89")
+           "baselines.reproduce.dm89", "baselines.reproduce.nk00")
 
 
 @dataclass

@@ -564,7 +564,10 @@ def _add_train(sub) -> None:
     p.add_argument("--suite", default=None, help="train on every scenario of this suite (sampled per episode)")
     p.add_argument("--scenario", action="append", default=[], help="SUITE/SCENARIO to train on (repeatable)")
     p.add_argument("--tags", default="", help="only scenarios with all these tags (comma-separated)")
-    p.add_argument("--algo", default="maskable-ppo", help="maskable-ppo (default), ppo, a2c or dqn")
+    p.add_argument("--algo", default="maskable-ppo",
+                   help="maskable-ppo (default), ppo, a2c, dqn, dagger or bc (behaviour cloning)")
+    p.add_argument("--expert", default="truth",
+                   help="dagger / bc: imitate 'truth' (default) or a reference policy spec (e.g. mht, fdp, genie)")
     p.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel episodes (default: the YAML's n_envs)")
     p.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
@@ -597,7 +600,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                          timesteps=args.timesteps, time_budget=args.time_budget, seed=args.seed,
                          eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                          hyperparams_file=Path(args.hyperparams) if args.hyperparams else None,
-                         into_package=args.into_package, progress=not args.no_progress)
+                         into_package=args.into_package, progress=not args.no_progress, expert=args.expert)
     result = train(config)
     _status(f"deint: trained {result.timesteps} steps in {result.seconds:.0f} s -> {result.last}"
             + (f" (best: {result.best})" if result.best else ""))

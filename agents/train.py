@@ -152,6 +152,7 @@ class _Run:
         self.suite_hashes = {s: load_suite(s).content_hash for s in suites}
         self.train_ranges = sorted({(r.start, r.stop) for _, e in entries for r in [split_seeds(e, "train")]})
         self.max_labels = max(e.spec.n_labels for _, e in entries)
+        self.blind = any(e.spec.blind for _, e in entries)
         keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
         self.hp_key, hp = load_hyperparams(config.algo, keys, config.hyperparams_file)
         self.n_envs = int(config.n_envs or hp.get("n_envs", 8))
@@ -223,6 +224,8 @@ def train(config: TrainConfig) -> TrainResult:
         from agents.imitation import dagger
 
         expert = make_expert(config.expert)  # an unknown spec fails before anything is written
+        if config.expert != TRUTH and run.blind:
+            raise DeintError(f"--expert {config.expert!r} imitates anchored labels; blind scenarios need --expert truth")
         run.out.mkdir(parents=True, exist_ok=True)
         threads = torch.get_num_threads()
         torch.set_num_threads(1)

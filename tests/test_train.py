@@ -157,6 +157,7 @@ def test_bc_from_a_reference_policy_logs_resumes_and_keeps_its_expert(tmp_path):
     (dict(algo="ppo", expert="mht"), "--expert applies to dagger and bc"),
     (dict(algo="bc", expert="nosuch"), "nosuch"),
     (dict(algo="dagger", expert="agent:checkpoint=x.safetensors"), "learned agent"),
+    (dict(algo="bc", expert="fdp", scenarios=("blind-v0/blind-n2to2-jitter0.1",)), "blind scenarios need"),
 ])
 def test_bad_experts_are_refused_before_anything_is_written(tmp_path, kw, match):
     with pytest.raises(DeintError, match=match):

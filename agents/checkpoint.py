@@ -113,8 +113,12 @@ def save_checkpoint(path: str | os.PathLike, tensors: dict[str, Any], meta: Chec
 
 def read_header(data: bytes, where: str) -> dict[str, Any]:
     """The safetensors JSON header of `data`, or a one-line refusal naming what the file is."""
+    # A safetensors file starts with its header length (u64, little-endian) and then "{": a length
+    # whose low byte is 0x80 looks like a pickle's first byte, so name a signature only for files
+    # that are not laid out as safetensors (they are never unpickled either way).
+    laid_out = len(data) > 8 and data[8:9] == b"{" and struct.unpack("<Q", data[:8])[0] <= len(data) - 8
     for magic, what in _SIGNATURES:
-        if data.startswith(magic):
+        if data.startswith(magic) and not laid_out:
             raise DeintError(f"{where} is {what}; checkpoints are loaded only from safetensors files, "
                              "never unpickled")
     if len(data) < 8:

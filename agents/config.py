@@ -25,6 +25,7 @@ class TrainConfig:
     hyperparams_file: Path | None = None
     into_package: bool = False
     progress: bool = True
+    expert: str = "truth"  # dagger / bc: "truth" or a reference policy spec (agents.experts)
 
 
 @dataclass

@@ -9,6 +9,10 @@ the expert's label, and the network is fitted by cross-entropy on the aggregate 
 samples, oldest dropped).  In blind mode the right label depends on the learner's own track naming:
 the expert continues the track holding the pulse's true predecessor, or opens an unused one.  Checkpoints are the same single-file format as the RL agents
 (architecture `track-net`), so `agent:checkpoint=PATH` plays them and PPO can fine-tune them.
+
+`--algo bc` is plain behaviour cloning: the same loop with beta = 1 throughout (only the expert's
+own states).  `--expert SPEC` imitates a reference policy's labels instead of the truth
+(agents.experts).  Each iteration's loss, beta and sample count go to TensorBoard (agents.tb).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 from gymnasium import spaces
+from tqdm import tqdm
 
 from agents.checkpoint import load_checkpoint
 from agents.config import TrainConfig, TrainResult
@@ -81,8 +86,9 @@ def _logits(policy: TrackPolicy, obs: dict[str, torch.Tensor]) -> torch.Tensor:
     return policy.mlp_extractor.forward_actor(features)
 
 
-def dagger(config: TrainConfig, run) -> TrainResult:
-    """Run DAgger as `deint train --algo dagger` does (`run` is agents.train's `_Run`)."""
+def dagger(config: TrainConfig, run, expert) -> TrainResult:
+    """Run DAgger (or BC) as `deint train --algo dagger|bc` does (`run` is agents.train's `_Run`,
+    `expert` an agents.experts.Expert)."""
     params = DaggerParams.from_yaml({**run.algo_kwargs, "policy_kwargs": run.policy_kwargs, "n_envs": run.n_envs})
     torch.manual_seed(config.seed)
     layout = TrackLayout(max_tracks=run.max_tracks, lookahead=config.lag)
@@ -93,7 +99,8 @@ def dagger(config: TrainConfig, run) -> TrainResult:
     done, iteration = 0, 0
     if last.is_file():
         ck = load_checkpoint(last)
-        if ck.meta.algorithm != "dagger" or ck.meta.architecture != architecture_of(policy):
+        if (ck.meta.algorithm != config.algo or ck.meta.architecture != architecture_of(policy)
+                or ck.meta.hyperparameters.get("expert", "truth") != expert.name):
             raise DeintError(f"{last} holds a {ck.meta.algorithm} agent; this run trains another: choose another "
                              "output directory")
         load_weights(policy, ck.tensors, f"checkpoint {last}")
@@ -115,22 +122,25 @@ def dagger(config: TrainConfig, run) -> TrainResult:
 
     model = _Model()
     obs = env.features.observation()
+    bar = tqdm(total=run.timesteps, initial=min(done, run.timesteps), unit="step", disable=not config.progress,
+               desc=f"{config.algo} ({expert.name})")
     while done < run.timesteps and (config.time_budget is None
                                     or time.perf_counter() - run.t0 < config.time_budget):
-        beta = params.beta_decay ** iteration
+        beta = 1.0 if config.algo == "bc" else params.beta_decay ** iteration
         policy.eval()
+        t_iter = time.perf_counter()
         for _ in range(params.rollout_steps):
             ready = env.features.ready
-            expert = expert_actions(env, layout.max_tracks)
+            target = expert.actions(env, layout.max_tracks)
             if beta < 1.0:
                 greedy = np.where(env.action_masks(), action_scores(policy, obs).numpy(), -np.inf).argmax(1)
-                act = np.where(rng.random(env.num_envs) < beta, expert, greedy)
+                act = np.where(rng.random(env.num_envs) < beta, target, greedy)
             else:
-                act = expert
+                act = target
             if ready.any():
                 for k in keys:
                     buf[k].append(obs[k][ready])
-                buf["action"].append(expert[ready])
+                buf["action"].append(target[ready])
                 stored += int(ready.sum())
             obs, *_ = env.step(act)
             done += env.num_envs
@@ -141,6 +151,7 @@ def dagger(config: TrainConfig, run) -> TrainResult:
         data = {k: torch.as_tensor(np.concatenate(buf[k])) for k in buf}
         policy.train()
         n = len(data["action"])
+        losses = []
         for _ in range(params.epochs):
             order = torch.as_tensor(rng.permutation(n))
             for b in range(0, n, params.batch_size):
@@ -150,12 +161,21 @@ def dagger(config: TrainConfig, run) -> TrainResult:
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
+                losses.append(loss.item())
         iteration += 1
         model.num_timesteps = done
         run.iteration = iteration
+        bar.update(params.rollout_steps * env.num_envs)
+        if run.tb is not None:
+            for tag, value in (("train/loss", float(np.mean(losses))), ("train/beta", beta), ("train/samples", n),
+                               ("train/iteration", iteration),
+                               ("time/steps_per_second", params.rollout_steps * env.num_envs
+                                / (time.perf_counter() - t_iter))):
+                run.tb.add_scalar(tag, value, done)
         if done >= next_eval or done >= run.timesteps:
             next_eval = done + config.eval_every
             run.checkpoint(model)
+    bar.close()
     if not run.evaluations or run.evaluations[-1]["timesteps"] != done:
         run.checkpoint(model)
     best = run.out / "best.safetensors"

@@ -3,6 +3,7 @@
     deint train --suite core-v0 --algo maskable-ppo --n-envs 16 --time-budget 1800 --out runs/train/core
     deint train --scenario core-v0/core-n6-spread4-jitter0.05 --algo ppo --timesteps 200000
     deint train --suite core-v0 --algo dagger --time-budget 900       # imitation of the truth (agents.imitation)
+    deint train --suite core-v0 --algo bc --expert mht --timesteps 200000   # behaviour cloning of mht's labels
 
 Hyper-parameters come from rl-zoo-style YAML files, one per algorithm (`agents/hyperparams/ALGO.yml`),
 keyed by scenario (`suite/scenario`), then suite, then `default`; `--hyperparams FILE` names another
@@ -12,12 +13,13 @@ the validation seeds greedily and keeps the best as `best.safetensors` (both sin
 checkpoints for `agent:checkpoint=PATH`), and appends the evaluation to `eval.jsonl`.  A rerun with
 the same output directory resumes from `last.safetensors` (its weights and step count; the optimiser
 moments and a DQN replay buffer start afresh).  The output directory may not lie inside the installed
-package unless `into_package=True` (`--into-package`).
+package unless `into_package=True` (`--into-package`).  TensorBoard logs go to `OUT/tensorboard`:
+SB3's own scalars (`tensorboard_log`), the imitation loop's (agents.imitation) and, for every
+algorithm, `eval/validation_accuracy`.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import time
 from pathlib import Path
@@ -31,14 +33,17 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
 from agents.config import TrainConfig, TrainResult
+from agents.experts import TRUTH
 from agents.networks import (MaskableTrackPolicy, TrackDQNPolicy, TrackPolicy, action_scores, architecture_of,
                              load_weights, weights_of)
+from agents.tb import next_run_dir, tensorboard_available, writer
 from agents.vec_env import TokenVecEnv
 from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger")
+ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger", "bc")
+IMITATION = ("dagger", "bc")  # agents.imitation; their YAML is dagger.yml
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
 # Keys of a YAML entry that are not the algorithm's own keyword arguments (as in rl-zoo).
@@ -63,7 +68,7 @@ def _algo_class(algo: str):
 
 def load_hyperparams(algo: str, keys: list[str], path: Path | None = None) -> tuple[str, dict[str, Any]]:
     """(the key used, its entry) from the algorithm's YAML: the first of `keys` present, else default."""
-    path = path or HYPERPARAMS_DIR / f"{algo}.yml"
+    path = path or HYPERPARAMS_DIR / f"{'dagger' if algo in IMITATION else algo}.yml"
     if not path.is_file():
         raise DeintError(f"hyper-parameter file {path} does not exist")
     try:
@@ -147,6 +152,7 @@ class _Run:
         self.suite_hashes = {s: load_suite(s).content_hash for s in suites}
         self.train_ranges = sorted({(r.start, r.stop) for _, e in entries for r in [split_seeds(e, "train")]})
         self.max_labels = max(e.spec.n_labels for _, e in entries)
+        self.blind = any(e.spec.blind for _, e in entries)
         keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
         self.hp_key, hp = load_hyperparams(config.algo, keys, config.hyperparams_file)
         self.n_envs = int(config.n_envs or hp.get("n_envs", 8))
@@ -163,6 +169,7 @@ class _Run:
         self.t0 = time.perf_counter()
         self.seconds_before = 0.0
         self.iteration = 0  # DAgger's iteration count (agents.imitation)
+        self.tb = None  # the imitation loop's SummaryWriter (SB3 logs through its own logger)
 
     def meta(self, model) -> CheckpointMeta:
         from deint_env.features import TrackLayout
@@ -170,6 +177,8 @@ class _Run:
         layout = TrackLayout(max_tracks=self.max_tracks, lookahead=self.config.lag)
         hp = {**self.algo_kwargs, "policy_kwargs": self.policy_kwargs, "n_envs": self.n_envs,
               "max_tracks": self.max_tracks, "hyperparams_key": self.hp_key}
+        if self.config.algo in IMITATION:
+            hp["expert"] = self.config.expert
         return CheckpointMeta(
             architecture=architecture_of(model.policy), features=layout.to_dict(), algorithm=self.config.algo,
             scenarios=self.scenarios, suite_hashes=self.suite_hashes,
@@ -183,14 +192,21 @@ class _Run:
 
     def checkpoint(self, model) -> None:
         policy = model.policy
+        t0 = time.perf_counter()
         score = evaluate_greedy(policy, self.env_kwargs, self.config.eval_episodes, seed=self.config.seed)
         record = {"timesteps": int(model.num_timesteps), "validation_accuracy": round(score, 4),
-                  "seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1)}
+                  "seconds": round(self.seconds_before + time.perf_counter() - self.t0, 1),
+                  "eval_seconds": round(time.perf_counter() - t0, 2)}  # of "seconds", spent validating
         self.evaluations.append(record)
         if score > self.best_score:
             self.best_score = score
             save_checkpoint(self.out / "best.safetensors", weights_of(policy), self.meta(model))
         save_checkpoint(self.out / "last.safetensors", weights_of(policy), self.meta(model))
+        if self.tb is not None:
+            self.tb.add_scalar("eval/validation_accuracy", score, record["timesteps"])
+            self.tb.flush()
+        elif hasattr(model, "logger"):  # SB3: written with the rollout's scalars
+            model.logger.record("eval/validation_accuracy", score)
         with open(self.out / "eval.jsonl", "a") as f:
             f.write(json.dumps(record) + "\n")
         if self.config.progress:
@@ -200,24 +216,32 @@ class _Run:
 def train(config: TrainConfig) -> TrainResult:
     if config.algo not in ALGOS:
         raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
+    if config.expert != TRUTH and config.algo not in IMITATION:
+        raise DeintError(f"--expert applies to {' and '.join(IMITATION)}, not to --algo {config.algo}")
     run = _Run(config)
-    run.out.mkdir(parents=True, exist_ok=True)
-    if config.algo == "dagger":
+    if config.algo in IMITATION:
+        from agents.experts import make_expert
         from agents.imitation import dagger
 
+        expert = make_expert(config.expert)  # an unknown spec fails before anything is written
+        if config.expert != TRUTH and run.blind:
+            raise DeintError(f"--expert {config.expert!r} imitates anchored labels; blind scenarios need --expert truth")
+        run.out.mkdir(parents=True, exist_ok=True)
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
+        run.tb = writer(next_run_dir(run.out / "tensorboard", config.algo), config.progress)
         try:
-            return dagger(config, run)
+            return dagger(config, run, expert)
         finally:
             torch.set_num_threads(threads)
+            if run.tb is not None:
+                run.tb.close()
+    run.out.mkdir(parents=True, exist_ok=True)
     algo_cls, policy_cls = _algo_class(config.algo)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small networks: thread hand-offs cost more than they save
-    tb = None
-    if importlib.util.find_spec("tensorboard") is not None:
-        tb = str(run.out / "tensorboard")
-    elif config.progress:
+    tb = str(run.out / "tensorboard") if tensorboard_available() else None
+    if tb is None and config.progress:
         print("deint: tensorboard is not installed, so no TensorBoard logs (pip install tensorboard)", flush=True)
     try:
         venv = VecMonitor(TokenVecEnv.make(run.n_envs, **run.env_kwargs))
@@ -248,6 +272,7 @@ def train(config: TrainConfig) -> TrainResult:
                         progress_bar=config.progress, tb_log_name=config.algo)
             if not run.evaluations or run.evaluations[-1]["timesteps"] != model.num_timesteps:
                 run.checkpoint(model)
+                model.logger.dump(model.num_timesteps)
         venv.close()
     finally:
         torch.set_num_threads(threads)

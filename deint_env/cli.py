@@ -564,7 +564,10 @@ def _add_train(sub) -> None:
     p.add_argument("--suite", default=None, help="train on every scenario of this suite (sampled per episode)")
     p.add_argument("--scenario", action="append", default=[], help="SUITE/SCENARIO to train on (repeatable)")
     p.add_argument("--tags", default="", help="only scenarios with all these tags (comma-separated)")
-    p.add_argument("--algo", default="maskable-ppo", help="maskable-ppo (default), ppo, a2c or dqn")
+    p.add_argument("--algo", default="maskable-ppo",
+                   help="maskable-ppo (default), ppo, a2c, dqn, dagger or bc (behaviour cloning)")
+    p.add_argument("--expert", default="truth",
+                   help="dagger / bc: imitate 'truth' (default) or a reference policy spec (e.g. mht, fdp, genie)")
     p.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel episodes (default: the YAML's n_envs)")
     p.add_argument("--time-budget", type=float, default=None, help="stop after this many seconds of training")
@@ -597,10 +600,50 @@ def cmd_train(args: argparse.Namespace) -> int:
                          timesteps=args.timesteps, time_budget=args.time_budget, seed=args.seed,
                          eval_every=args.eval_every, eval_episodes=args.eval_episodes,
                          hyperparams_file=Path(args.hyperparams) if args.hyperparams else None,
-                         into_package=args.into_package, progress=not args.no_progress)
+                         into_package=args.into_package, progress=not args.no_progress, expert=args.expert)
     result = train(config)
     _status(f"deint: trained {result.timesteps} steps in {result.seconds:.0f} s -> {result.last}"
             + (f" (best: {result.best})" if result.best else ""))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# deint dataset
+# ---------------------------------------------------------------------------------------------------
+def _add_dataset(sub) -> None:
+    p = sub.add_parser("dataset", help="export a reference policy's demonstrations as a Minari dataset",
+                       description="Record a policy playing the first seeds of a split of a suite or scenarios as a "
+                                   "Minari dataset: observations, actions (the policy's labels), rewards, and in the "
+                                   "infos the true and the policy's label of each step's pulse (agents/dataset.py).")
+    p.add_argument("dataset_id", help="Minari dataset id NAMESPACE/NAME-vN, e.g. deint/core-fdp-v0")
+    p.add_argument("--suite", default=None, help="every scenario of this suite")
+    p.add_argument("--scenario", action="append", default=[], help="SUITE/SCENARIO (repeatable)")
+    p.add_argument("--tags", default="", help="only scenarios with all these tags (comma-separated)")
+    p.add_argument("--split", choices=("train", "validation", "test"), default="train",
+                   help="the seed split (default train)")
+    p.add_argument("--seeds", type=int, default=2, help="episodes per scenario: the split's first seeds (default 2)")
+    p.add_argument("--policy", default="fdp", help="the demonstrating policy spec (default fdp)")
+    p.add_argument("--env", choices=("raw", "tokens"), default="raw",
+                   help="raw: Deinterleave-v0 observations and labels; tokens: DeinterleaveTokens-v0 (track actions)")
+    p.add_argument("--max-tracks", type=int, default=8, help="tokens env: padded track count (default 8)")
+    p.add_argument("--root", default=None,
+                   help="datasets directory (default: $MINARI_DATASETS_PATH, else ~/.minari/datasets)")
+    p.set_defaults(func=cmd_dataset)
+
+
+def cmd_dataset(args: argparse.Namespace) -> int:
+    try:
+        from agents.dataset import DatasetConfig, write_dataset
+    except ImportError as e:
+        raise DeintError(f"deint dataset needs {e.name}: pip install 'minari[create]'") from None
+    if args.max_tracks < 1:
+        raise DeintError(f"--max-tracks={args.max_tracks} must be >= 1")
+    config = DatasetConfig(args.dataset_id, policy=args.policy, suite=args.suite, scenarios=tuple(args.scenario),
+                           tags=tuple(t for t in args.tags.split(",") if t), split=args.split, seeds=args.seeds,
+                           env=args.env, max_tracks=args.max_tracks, root=Path(args.root) if args.root else None)
+    dest, episodes = write_dataset(config)
+    _status(f"deint: wrote {episodes} episodes to {dest} (minari.load_dataset({args.dataset_id!r}) with "
+            f"MINARI_DATASETS_PATH={dest.parents[len(Path(args.dataset_id).parts) - 1]})")
     return 0
 
 
@@ -770,7 +813,8 @@ def cmd_leaderboard_export(args: argparse.Namespace) -> int:
 # One parser builder per subcommand, in help order: a builder adds its subparser and sets `func` to a
 # `cmd_*(args) -> int`.
 SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
-                                            _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_tdc]
+                                            _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_dataset,
+                                            _add_tdc]
 
 
 def build_parser() -> argparse.ArgumentParser:

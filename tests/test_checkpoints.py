@@ -88,6 +88,18 @@ def test_pickles_and_zips_are_refused_without_running_them(tmp_path):
     assert not marker.exists()
 
 
+def test_a_header_length_ending_in_0x80_is_not_taken_for_a_pickle(tmp_path):
+    """A safetensors file starts with its header length: low byte 0x80 is a pickle's first byte."""
+    net, _ = _random_agent(tmp_path / "a.safetensors")
+    path = tmp_path / "b.safetensors"
+    for pad in range(256):
+        save_checkpoint(path, weights_of(net), _meta(architecture_of(net), notes={"pad": "x" * pad}))
+        if path.read_bytes()[0] == 0x80:
+            break
+    assert path.read_bytes()[0] == 0x80
+    assert load_checkpoint(path).meta.notes["pad"] == "x" * pad
+
+
 def test_malformed_and_foreign_safetensors_are_refused(tmp_path):
     from safetensors.torch import save_file
 

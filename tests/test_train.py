@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 pytest.importorskip("sb3_contrib")  # the [rl] extra
@@ -108,3 +109,86 @@ def test_a_tiny_dagger_run_learns_something(tmp_path):
     assert read_meta(result.last).algorithm == "dagger" and result.timesteps == 3200
     # Measured: ~0.9 validation accuracy after 3200 steps (random labels: 0.33).
     assert result.evaluations[-1]["validation_accuracy"] > 0.5
+
+
+def scalars(run_dir) -> dict[str, list[float]]:
+    """Every scalar tag TensorBoard would show for the event files under `run_dir`."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out: dict[str, list[float]] = {}
+    for events in run_dir.rglob("events.out.tfevents.*"):
+        acc = EventAccumulator(str(events.parent))
+        acc.Reload()
+        for tag in acc.Tags()["scalars"]:
+            out.setdefault(tag, []).extend(e.value for e in acc.Scalars(tag))
+    return out
+
+
+def test_sb3_runs_log_to_tensorboard_with_the_validation_accuracy(tmp_path):
+    pytest.importorskip("tensorboard")
+    hp = tmp_path / "hp.yml"
+    hp.write_text("default:\n  n_steps: 64\n  batch_size: 64\n  n_epochs: 1\n  policy_kwargs: {d_model: 8, heads: 2}\n")
+    result = train(tiny(tmp_path / "p", algo="ppo", hyperparams_file=hp))
+    logged = scalars(tmp_path / "p" / "tensorboard")
+    assert "train/loss" in logged and "time/fps" in logged  # SB3's own scalars
+    assert logged["eval/validation_accuracy"] == pytest.approx([e["validation_accuracy"] for e in result.evaluations],
+                                                               abs=1e-4)
+
+
+def test_bc_from_a_reference_policy_logs_resumes_and_keeps_its_expert(tmp_path):
+    pytest.importorskip("tensorboard")
+    hp = tmp_path / "hp.yml"
+    hp.write_text("default:\n  rollout_steps: 64\n  epochs: 1\n  policy_kwargs: {d_model: 8, heads: 2}\n")
+    out = tmp_path / "bc"
+    first = train(tiny(out, algo="bc", expert="nearest-prior", hyperparams_file=hp, n_envs=4, timesteps=256))
+    meta = read_meta(first.last)
+    assert meta.algorithm == "bc" and meta.hyperparameters["expert"] == "nearest-prior" and first.timesteps == 256
+    logged = scalars(out / "tensorboard")
+    assert logged["train/beta"] == [1.0] * len(logged["train/beta"])  # plain behaviour cloning: the expert drives
+    assert len(logged["train/loss"]) == 1 and np.isfinite(logged["train/loss"]).all()
+    assert len(logged["eval/validation_accuracy"]) == len(first.evaluations)
+    again = train(tiny(out, algo="bc", expert="nearest-prior", hyperparams_file=hp, n_envs=4, timesteps=512))
+    assert again.timesteps == 512 and len(list((out / "tensorboard").iterdir())) == 2  # bc_1, bc_2
+    with pytest.raises(DeintError, match="this run trains another"):
+        train(tiny(out, algo="bc", expert="truth", hyperparams_file=hp, n_envs=4, timesteps=1024))
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(algo="ppo", expert="mht"), "--expert applies to dagger and bc"),
+    (dict(algo="bc", expert="nosuch"), "nosuch"),
+    (dict(algo="dagger", expert="agent:checkpoint=x.safetensors"), "learned agent"),
+    (dict(algo="bc", expert="fdp", scenarios=("blind-v0/blind-n2to2-jitter0.1",)), "blind scenarios need"),
+])
+def test_bad_experts_are_refused_before_anything_is_written(tmp_path, kw, match):
+    with pytest.raises(DeintError, match=match):
+        train(tiny(tmp_path / "o", **kw))
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("spec", ["fdp", "genie"])
+def test_a_reference_expert_replays_the_policys_own_labels(spec):
+    """Driving the token env with the expert's actions reproduces the policy's episode accuracy."""
+    from agents.experts import make_expert
+    from deint_env.envs.tokens import make_tokens_vector_env
+    from deint_env.policies import is_oracle, make_policy
+    from deint_env.runner import accuracy_of
+
+    expert = make_expert(spec)
+    env = make_tokens_vector_env(2, scenario=SCENARIO, lag=0, max_tracks=8)
+    env.reset(seed=find_entry(SCENARIO).test.start)
+    while True:
+        _, _, terminated, _, info = env.step(expert.actions(env, 8))
+        if terminated.any():
+            break
+    for i in range(2):
+        episode = simulate(find_entry(SCENARIO).spec, find_entry(SCENARIO).test.start + i)
+        own = play(make_policy(spec), episode, oracle=is_oracle(spec), clustering=False).labels
+        assert info["episode_accuracy"][i] == pytest.approx(accuracy_of(own, episode))
+
+
+def test_a_reference_expert_refuses_blind_scenarios():
+    from agents.experts import make_expert
+
+    episode = simulate(find_entry("blind-v0/blind-n2to2-jitter0.1").spec, 0)
+    with pytest.raises(DeintError, match="anchored scenarios only"):
+        make_expert("fdp").labels(episode)

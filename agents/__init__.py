@@ -13,6 +13,9 @@ POLICIES = (
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),
+    PolicyInfo("seq", "agents.sequence:SequencePolicy", kind="learned", modes=("blind",), extra="rl",
+               description="supervised pointer sequence labeller (Transformer over the pulse window, look-ahead = lag 32; "
+                           "agents/checkpoints/seq-blind-v0.safetensors, trained on blind-v0's train seeds): blind only"),
     PolicyInfo("ppo", "agents.policy:ppo", kind="learned", modes=("anchored",), extra="rl",
                description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario"),
 )

@@ -38,7 +38,7 @@ from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger")
+ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger", "seq")
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
 # Keys of a YAML entry that are not the algorithm's own keyword arguments (as in rl-zoo).
@@ -200,6 +200,9 @@ class _Run:
 def train(config: TrainConfig) -> TrainResult:
     if config.algo not in ALGOS:
         raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
+    if config.algo == "seq":  # the supervised pointer labeller: its own loop, no SB3 model (agents.sequence)
+        from agents.sequence import train_seq
+        return train_seq(config)
     run = _Run(config)
     run.out.mkdir(parents=True, exist_ok=True)
     if config.algo == "dagger":

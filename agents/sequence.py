@@ -40,11 +40,13 @@ from deint_env.labels import NO_PRED, SPURIOUS_PRED, correct_link, true_predeces
 
 ARCHITECTURE = "seq-pointer"
 FEATURE_LAYOUT = "pointer-pairs"
-FEATURE_VERSION = 1
+FEATURE_VERSION = 2
+DEFAULT_MARGIN = 2.0  # ChainDecoder's margin in play (chosen on validation seeds: 0 and 1e9 did worse)
 DECODER_VERSION = 2  # bump when ChainDecoder's labels change: results are keyed on it with the checkpoint
 BACK_MULTIPLES = (1.0, 2.0, 3.0)  # t_i - m d
 FORWARD_MULTIPLES = (1.0, 2.0, 3.0)  # t_j + m d (the look-ahead)
 N_FEATURES = 2 + 3 * (len(BACK_MULTIPLES) + 1 + len(FORWARD_MULTIPLES)) + 2
+N_CHAIN = 6  # chain features per candidate (`chain_features`)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,9 @@ class SeqLayout:
 class PairFeatures(NamedTuple):
     x: np.ndarray  # (n, window, N_FEATURES) float32: candidate i = j - 1 - c for column c
     valid: np.ndarray  # (n, window) bool: the candidate exists
+    cand: np.ndarray  # (n, window) int64: the candidate's pulse index (0 where absent)
+    gap: np.ndarray  # (n, window) float64: t_j - t_i
+    scale: np.ndarray  # (n, 1) float64: the visible pulses' mean spacing
 
 
 def pair_features(toa: np.ndarray, amplitude: np.ndarray | None, targets: np.ndarray, layout: SeqLayout,
@@ -118,7 +123,28 @@ def pair_features(toa: np.ndarray, amplitude: np.ndarray | None, targets: np.nda
     else:
         cols += [np.zeros((n, W, 2))]
     x = np.concatenate(cols, axis=-1) * valid[..., None]
-    return PairFeatures(x.astype(np.float32), valid)
+    return PairFeatures(x.astype(np.float32), valid, ci, d, scale)
+
+
+def chain_features(toa: np.ndarray, pred: np.ndarray, f: PairFeatures) -> np.ndarray:
+    """(n, window, N_CHAIN) float32: how each candidate's own chain agrees with the gap d = t_j - t_i:
+    for its chain's last two intervals g (i's predecessor in its chain, and that one's), whether
+    there is one and |g - d| over d and over the mean spacing.  `pred[i]` is i's predecessor in its
+    chain (-1: none), from the truth in training and from the labels already given in play."""
+    p1 = np.where(f.valid, pred[f.cand], -1)
+    p2 = np.where(p1 >= 0, pred[np.maximum(p1, 0)], -1)
+    t1, t2 = toa[np.maximum(p1, 0)], toa[np.maximum(p2, 0)]
+    cols = []
+    for g, has in ((toa[f.cand] - t1, p1 >= 0), (t1 - t2, p2 >= 0)):
+        r = np.abs(g - f.gap)
+        cols += [has, np.minimum(r / f.gap, 0.5) * 2.0 * has, np.log1p(np.minimum(r / f.scale, 1e3)) * has]
+    return np.stack(cols, axis=-1).astype(np.float32)
+
+
+def chain_truth(episode: Episode) -> np.ndarray:
+    """Each pulse's predecessor in its source (-1: none or spurious), the chains a perfect labeller makes."""
+    pred = true_predecessors(episode.source, episode.mask).pred
+    return np.where(pred >= 0, pred, -1)
 
 
 def pointer_targets(episode: Episode, targets: np.ndarray, window: int) -> np.ndarray:
@@ -131,7 +157,10 @@ def pointer_targets(episode: Episode, targets: np.ndarray, window: int) -> np.nd
 
 
 class PointerNet(nn.Module):
-    """Token MLP, Transformer encoder over the candidates + "new" + "spurious", linear pointer read-out."""
+    """Token MLP, Transformer encoder over the candidates + "new" + "spurious", linear pointer read-out,
+    plus a chain head: a ReLU MLP on each candidate's encoding and its chain features, added to its
+    logit.  The encoder sees only the pulses (batched over many pulses in play); the chain head
+    depends on the labels already given, so it runs pulse by pulse (`ChainHead`, in numpy)."""
 
     def __init__(self, window: int, d_model: int = 48, heads: int = 4, layers: int = 2, ff: int = 96):
         super().__init__()
@@ -142,15 +171,22 @@ class PointerNet(nn.Module):
         layer = nn.TransformerEncoderLayer(d_model, heads, ff, dropout=0.0, batch_first=True, norm_first=True)
         self.encoder = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
         self.out = nn.Linear(d_model, 1)
+        self.chain = nn.Sequential(nn.Linear(d_model + N_CHAIN, ff), nn.ReLU(), nn.Linear(ff, 1))
 
-    def forward(self, x: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-        """(B, W, F), (B, W) bool -> logits (B, W + 2); absent candidates get -inf."""
+    def encode(self, x: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, W, F), (B, W) bool -> candidate encodings (B, W, d) and base logits (B, W + 2), absent
+        candidates at -inf."""
         b = x.shape[0]
         h = torch.cat([self.embed(x), self.special.expand(b, 2, -1)], dim=1)
         keep = torch.cat([valid, torch.ones(b, 2, dtype=torch.bool)], dim=1)
         h = self.encoder(h, src_key_padding_mask=~keep)
-        logits = self.out(h).squeeze(-1)
-        return logits.masked_fill(~keep, -math.inf)
+        return h[:, :self.window], self.out(h).squeeze(-1).masked_fill(~keep, -math.inf)
+
+    def forward(self, x: torch.Tensor, valid: torch.Tensor, chain: torch.Tensor) -> torch.Tensor:
+        """Logits (B, W + 2) given the chain features (B, W, N_CHAIN)."""
+        h, base = self.encode(x, valid)
+        extra = self.chain(torch.cat([h, chain], dim=-1)).squeeze(-1)
+        return base + nn.functional.pad(extra, (0, 2))
 
     def architecture(self) -> dict[str, Any]:
         return {"name": ARCHITECTURE, "window": self.window, **self.kwargs}
@@ -163,13 +199,30 @@ def build_net(architecture: dict[str, Any], where: str) -> PointerNet:
     return PointerNet(int(architecture["window"]), **kw)
 
 
-def scores(net: PointerNet, feats: PairFeatures, chunk: int = 512) -> np.ndarray:
-    """Pointer logits (n, W + 2) of the featured pulses, `chunk` pulses per forward pass."""
-    out = []
+def encode(net: PointerNet, feats: PairFeatures, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate encodings (n, W, d) and base logits (n, W + 2), `chunk` pulses per forward pass."""
+    hs, bs = [], []
     with torch.inference_mode():
         for k in range(0, feats.x.shape[0], chunk):
-            out.append(net(torch.from_numpy(feats.x[k:k + chunk]), torch.from_numpy(feats.valid[k:k + chunk])))
-    return torch.cat(out).numpy() if out else np.zeros((0, net.window + 2), np.float32)
+            h, b = net.encode(torch.from_numpy(feats.x[k:k + chunk]), torch.from_numpy(feats.valid[k:k + chunk]))
+            hs.append(h.numpy()), bs.append(b.numpy())
+    if not hs:
+        return np.zeros((0, net.window, net.kwargs["d_model"]), np.float32), np.zeros((0, net.window + 2), np.float32)
+    return np.concatenate(hs), np.concatenate(bs)
+
+
+class ChainHead:
+    """The network's chain head in numpy (one pulse at a time costs microseconds, not a torch call)."""
+
+    def __init__(self, net: PointerNet):
+        first, last = net.chain[0], net.chain[2]
+        self.w1, self.b1 = first.weight.detach().numpy().T.copy(), first.bias.detach().numpy().copy()
+        self.w2, self.b2 = last.weight.detach().numpy()[0].copy(), float(last.bias.detach().numpy()[0])
+
+    def __call__(self, h: np.ndarray, chain: np.ndarray) -> np.ndarray:
+        """(W, d), (W, N_CHAIN) -> (W,) logit increments."""
+        z = np.concatenate([h, chain], axis=-1) @ self.w1 + self.b1
+        return np.maximum(z, 0.0) @ self.w2 + self.b2
 
 
 class ChainDecoder:
@@ -180,8 +233,19 @@ class ChainDecoder:
         self.tail = np.full(n_labels, -1, dtype=np.int64)  # each label's last pulse
         self.last_use = np.full(n_labels, -1, dtype=np.int64)
         self.label_of_tail: dict[int, int] = {}
+        self.pred: list[int] = []  # each decoded pulse's predecessor in its chain (-1: none)
         self.n = 0  # pulses decoded
-        self.chains = 0  # chains opened
+        self.chain_of_label = np.full(n_labels, -1, dtype=np.int64)
+        self.lengths: list[int] = []  # pulses per chain opened
+
+    @property
+    def chains(self) -> int:
+        """Chains opened (a train broken by a mistake counts once per piece)."""
+        return len(self.lengths)
+
+    def trains(self, min_pulses: int) -> int:
+        """Chains holding at least `min_pulses` pulses."""
+        return sum(n >= min_pulses for n in self.lengths)
 
     def decode(self, logits: np.ndarray) -> int:
         j = self.n
@@ -200,11 +264,15 @@ class ChainDecoder:
             # later pulse; a new chain costs this one link and leaves the other chains whole.
             choice = -1
         if choice == -2:
+            self.pred.append(-1)
             return self.n_labels  # spurious
+        self.pred.append(-1 if choice == -1 else int(self.tail[choice]))
         if choice == -1:
             fresh = np.flatnonzero(self.last_use < 0)
             choice = int(fresh[0]) if fresh.size else int(np.argmin(self.last_use))
-            self.chains += 1
+            self.chain_of_label[choice] = len(self.lengths)
+            self.lengths.append(0)
+        self.lengths[self.chain_of_label[choice]] += 1
         old = int(self.tail[choice])
         if old >= 0:
             self.label_of_tail.pop(old, None)
@@ -217,30 +285,54 @@ class ChainDecoder:
         return choice
 
 
+def label_pulses(net: PointerNet, head: ChainHead, layout: SeqLayout, dec: ChainDecoder, toa: np.ndarray,
+                 amplitude: np.ndarray | None, n_avail: int, upto: int) -> list[int]:
+    """Labels of pulses [dec.n, upto): their encodings in one batch, then pulse by pulse the chain
+    head (on the chains decoded so far) and the decoder."""
+    targets = np.arange(dec.n, upto)
+    feats = pair_features(toa, amplitude, targets, layout, n_avail)
+    h, base = encode(net, feats)
+    pred = np.full(upto, -1, dtype=np.int64)
+    pred[:dec.n] = dec.pred
+    out = []
+    W = layout.window
+    for k, j in enumerate(targets.tolist()):
+        one = PairFeatures(*(a[k:k + 1] for a in feats))
+        logits = base[k].astype(np.float64)
+        logits[:W] += head(h[k], chain_features(toa, pred, one)[0])
+        out.append(dec.decode(logits))
+        pred[j] = dec.pred[j]
+    return out
+
+
 def label_episode(net: PointerNet, layout: SeqLayout, toa: np.ndarray, amplitude: np.ndarray | None,
-                  n_labels: int) -> tuple[np.ndarray, int]:
+                  n_labels: int, margin: float = DEFAULT_MARGIN) -> tuple[np.ndarray, int]:
     """Blind labels of a whole pulse stream at once (the same labels the policy emits); (labels, chains)."""
-    n = toa.size
-    logits = scores(net, pair_features(toa, amplitude, np.arange(n), layout, n))
-    dec = ChainDecoder(n_labels, layout.window)
-    return np.array([dec.decode(row) for row in logits], dtype=np.int64), dec.chains
+    dec = ChainDecoder(n_labels, layout.window, margin)
+    labels = label_pulses(net, ChainHead(net), layout, dec, toa, amplitude, toa.size, toa.size)
+    return np.array(labels, dtype=np.int64), dec.chains
 
 
 # ---------------------------------------------------------------------------------------------------
 # the policy
 # ---------------------------------------------------------------------------------------------------
+TRAIN_MIN_PULSES = 10
 CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "seq-blind-v0.safetensors"
 
 
 class SequencePolicy:
     """`seq`: the pointer labeller from a checkpoint (default: the zoo's blind-v0 one).  Pulse j is
-    labelled when pulse j + lag has arrived (with `batch=B`, B pulses at a time: lag + B - 1)."""
+    labelled when pulse j + lag has arrived (with `batch=B`, B pulses at a time: lag + B - 1).
+    `margin`: how much a taken predecessor must outscore every free one before the pulse opens a new
+    chain instead (`ChainDecoder`)."""
 
-    def __init__(self, checkpoint: str | None = None, batch: int = 1):
+    def __init__(self, checkpoint: str | None = None, batch: int = 1, margin: float = DEFAULT_MARGIN):
         from agents.checkpoint import load_checkpoint
 
         if isinstance(batch, bool) or not isinstance(batch, int) or not 1 <= batch <= 4096:
             raise ValueError(f"batch={batch!r} is invalid: an integer in [1, 4096] (pulses scored per pass)")
+        if not (isinstance(margin, (int, float)) and not isinstance(margin, bool) and 0 <= margin < math.inf):
+            raise ValueError(f"margin={margin!r} is invalid: a finite number >= 0 (logits)")
         torch.set_num_threads(1)
         path = Path(checkpoint) if checkpoint else CHECKPOINT
         ck = load_checkpoint(path)
@@ -249,6 +341,8 @@ class SequencePolicy:
         self.net = build_net(ck.meta.architecture, where)
         self.net.load_state_dict(ck.tensors, strict=True)
         self.net.eval()
+        self.head = ChainHead(self.net)
+        self.margin = float(margin)
         self.version = f"{ck.key}+decoder{DECODER_VERSION}"  # results keyed on the weights and the decoding
         self.batch = batch
         self.lag = self.layout.lag + batch - 1
@@ -262,16 +356,15 @@ class SequencePolicy:
         self._toa = np.zeros(cap)
         self._ampl = np.zeros(cap) if self._amp else None
         self._n = 0  # pulses received
-        self._scored = 0  # pulses whose logits are computed
-        self._logits: list[np.ndarray] = []
-        self._out: list[int] = []
+        self._out: list[int] = []  # labels of pulses [0, decoder.n)
         self._step = 0
         self._done = False
-        self.decoder = ChainDecoder(priors.n_labels, self.layout.window)
+        self.decoder = ChainDecoder(priors.n_labels, self.layout.window, self.margin)
 
     @property
     def trains_found(self) -> int:
-        return self.decoder.chains
+        """Chains of at least TRAIN_MIN_PULSES pulses (the trains it found; fragments left out)."""
+        return self.decoder.trains(TRAIN_MIN_PULSES)
 
     def _grow(self) -> None:
         self._toa = np.concatenate([self._toa, np.zeros(self._toa.size)])
@@ -279,14 +372,10 @@ class SequencePolicy:
             self._ampl = np.concatenate([self._ampl, np.zeros(self._ampl.size)])
 
     def _score(self, upto: int) -> None:
-        """Logits and labels of pulses [scored, upto)."""
-        if upto <= self._scored:
-            return
-        targets = np.arange(self._scored, upto)
-        feats = pair_features(self._toa, self._ampl, targets, self.layout, self._n)
-        for row in scores(self.net, feats):
-            self._out.append(self.decoder.decode(row))
-        self._scored = upto
+        """Labels of pulses [decoder.n, upto)."""
+        if upto > self.decoder.n:
+            self._out += label_pulses(self.net, self.head, self.layout, self.decoder, self._toa, self._ampl, self._n,
+                                      upto)
 
     def act(self, obs: dict[str, Any]) -> int:
         if int(obs["valid"]):
@@ -297,7 +386,7 @@ class SequencePolicy:
                 self._ampl[self._n] = float(obs["amplitude"][0])
             self._n += 1
             ready = self._n - self.layout.lag  # pulses whose look-ahead is complete
-            if ready - self._scored >= self.batch:
+            if ready - self.decoder.n >= self.batch:
                 self._score(ready)
         elif not self._done:  # the stream ended: every remaining pulse has all the look-ahead there is
             self._done = True
@@ -319,6 +408,8 @@ class SeqParams:
     episodes_per_step: int = 4
     pulses_per_episode: int = 128
     learning_rate: float = 1e-3
+    chain_dropout: float = 0.1  # share of true chain links hidden from the chain features in training
+    own_chains: float = 0.0  # share of episodes whose chain features come from the agent's own labels
     n_timesteps: int = 2_000_000  # labelled pulses seen by the optimiser
     validation_episodes: int = 16
     d_model: int = 48
@@ -336,6 +427,17 @@ class SeqParams:
         if "n_timesteps" in kw:
             kw["n_timesteps"] = int(float(kw["n_timesteps"]))
         return cls(**kw)
+
+
+def own_chains(net: PointerNet, layout: SeqLayout, ep: Episode) -> np.ndarray:
+    """The chains the agent itself makes of `ep` (its predecessors as decoded): in play the chain
+    features come from its own labels, mistakes included, so training on them too teaches it how far
+    to trust them (as DAgger does for actions)."""
+    net.eval()
+    dec = ChainDecoder(ep.n_labels, layout.window, DEFAULT_MARGIN)
+    label_pulses(net, ChainHead(net), layout, dec, ep.toa, ep.amplitude, len(ep), len(ep))
+    net.train()
+    return np.array(dec.pred, dtype=np.int64)
 
 
 def validate(net: PointerNet, layout: SeqLayout, episodes: Sequence[Episode]) -> float:
@@ -431,15 +533,19 @@ def train_seq(config) -> Any:
         while done < total:
             if config.time_budget is not None and time.perf_counter() - t0 > config.time_budget:
                 break
-            xs, vs, ys = [], [], []
+            xs, vs, ys, cs = [], [], [], []
             for _ in range(p.episodes_per_step):
                 k = int(rng.integers(len(entries)))
                 r = train_ranges[k]
                 ep = simulate_many(entries[k][1].spec, [int(rng.integers(r.start, r.stop))])[0]
                 tg = np.sort(rng.choice(len(ep), min(p.pulses_per_episode, len(ep)), replace=False))
                 f = pair_features(ep.toa, ep.amplitude, tg, layout, len(ep))
+                chains = own_chains(net, layout, ep) if rng.random() < p.own_chains else \
+                    np.where(rng.random(len(ep)) < p.chain_dropout, -1, chain_truth(ep))
                 xs.append(f.x), vs.append(f.valid), ys.append(pointer_targets(ep, tg, p.window))
-            logits = net(torch.from_numpy(np.concatenate(xs)), torch.from_numpy(np.concatenate(vs)))
+                cs.append(chain_features(ep.toa, chains, f))
+            logits = net(torch.from_numpy(np.concatenate(xs)), torch.from_numpy(np.concatenate(vs)),
+                         torch.from_numpy(np.concatenate(cs)))
             loss = nn.functional.cross_entropy(logits, torch.from_numpy(np.concatenate(ys)))
             opt.zero_grad()
             loss.backward()

@@ -9,7 +9,8 @@ torch = pytest.importorskip("torch")
 
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint  # noqa: E402
 from agents.sequence import (CHECKPOINT, N_FEATURES, ChainDecoder, PointerNet, SeqLayout,  # noqa: E402
-                             SequencePolicy, label_episode, pair_features, pointer_targets, scores)
+                             SequencePolicy, chain_features, chain_truth, encode, label_episode,
+                             pair_features, pointer_targets)
 from deint_env.cli import main  # noqa: E402
 from deint_env.errors import DeintError, NotApplicable  # noqa: E402
 from deint_env.labels import correct_link  # noqa: E402
@@ -40,8 +41,14 @@ def test_feature_and_logit_shapes(amplitude):
     assert np.isfinite(f.x).all()
     assert f.valid[0].sum() == 0 and f.valid[3].sum() == 3 and f.valid[50].all()
     assert (f.x[~f.valid] == 0).all()  # absent candidates carry nothing
-    logits = scores(tiny_net(), f)
-    assert logits.shape == (toa.size, LAYOUT.window + 2)
+    net = tiny_net()
+    h, logits = encode(net, f)
+    assert h.shape == (toa.size, LAYOUT.window, 8) and logits.shape == (toa.size, LAYOUT.window + 2)
+    chain = chain_features(toa, np.arange(toa.size) - 3, f)  # any chains: pulse i follows i - 3
+    assert chain.shape == (toa.size, LAYOUT.window, 6) and np.isfinite(chain).all()
+    with torch.no_grad():
+        full = net(torch.from_numpy(f.x), torch.from_numpy(f.valid), torch.from_numpy(chain)).numpy()
+    assert np.array_equal(np.isneginf(full), np.isneginf(logits))
     assert np.isneginf(logits[3, 3:LAYOUT.window]).all() and np.isfinite(logits[3, :3]).all()
     assert np.isfinite(logits[:, LAYOUT.window:]).all()  # "new" and "spurious" are always offered
 
@@ -90,7 +97,8 @@ def test_checkpoint_round_trip_and_policy_matches_batch_labelling(tmp_path, batc
     ep = simulate(find_entry("blind-v0/blind-n3to3-jitter0.1").spec, 5)
     res = play(pol, ep)
     want, chains = label_episode(net, LAYOUT, ep.toa, ep.amplitude, ep.n_labels)
-    assert np.array_equal(res.labels, want) and pol.trains_found == chains
+    assert np.array_equal(res.labels, want) and pol.decoder.chains == chains
+    assert sum(pol.decoder.lengths) == int(np.sum(res.labels < ep.n_labels))
 
 
 def test_refusals(tmp_path):
@@ -121,6 +129,7 @@ def test_pointer_targets_name_true_predecessors():
     onehot[np.arange(len(ep)), y] = 1.0
     labels = np.array([dec.decode(r) for r in onehot])
     assert np.mean(correct_link(labels, ep.source, ep.mask, ep.n_labels)) > 0.99
+    assert np.array_equal(np.array(dec.pred)[linked], chain_truth(ep)[linked])  # the chains are the truth's
 
 
 def test_train_entry_writes_a_resumable_checkpoint(tmp_path):
@@ -129,7 +138,7 @@ def test_train_entry_writes_a_resumable_checkpoint(tmp_path):
 
     hp = tmp_path / "seq.yml"
     hp.write_text("default:\n  window: 8\n  context: 16\n  episodes_per_step: 1\n  pulses_per_episode: 16\n"
-                  "  validation_episodes: 1\n  d_model: 8\n  heads: 2\n  layers: 1\n  ff: 16\n")
+                  "  validation_episodes: 1\n  d_model: 8\n  heads: 2\n  layers: 1\n  ff: 16\n  own_chains: 1.0\n")
     cfg = TrainConfig(out=tmp_path / "run", algo="seq", scenarios=("blind-v0/blind-n2to2-jitter0.1",), lag=2,
                       timesteps=32, eval_every=16, hyperparams_file=hp, progress=False)
     res = train(cfg)

@@ -8,7 +8,7 @@ Checkpoints are single safetensors files (`agents.checkpoint`); loading one neve
 from deint_env.policies import PolicyInfo
 
 POLICIES = (
-    PolicyInfo("agent", "agents.policy:AgentPolicy", kind="learned", extra="rl", required=("checkpoint",),
+    PolicyInfo("agent", "agents.policy:agent", kind="learned", extra="rl", required=("checkpoint",),
                description="a learned agent from a deint checkpoint file (agent:checkpoint=PATH.safetensors)"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from agents.config import TrainConfig, TrainResult
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, correct_link, true_predecessors
@@ -337,6 +338,7 @@ class SequencePolicy:
         path = Path(checkpoint) if checkpoint else CHECKPOINT
         ck = load_checkpoint(path)
         where = f"checkpoint {path}"
+        self.meta = ck.meta
         self.layout = SeqLayout.from_dict(ck.meta.features, where)
         self.net = build_net(ck.meta.architecture, where)
         self.net.load_state_dict(ck.tensors, strict=True)
@@ -451,24 +453,21 @@ def validate(net: PointerNet, layout: SeqLayout, episodes: Sequence[Episode]) ->
     return float(np.mean(acc))
 
 
-def train_seq(config) -> Any:
-    """Train the pointer labeller on the train seeds of `config`'s scenarios (blind ones), saving
-    `last` / `best` safetensors checkpoints after every validation; resumable from `last`."""
+def train_seq(config: TrainConfig, out: Path, hyperparams: tuple[str, dict[str, Any]]) -> TrainResult:
+    """Train the pointer labeller on the train seeds of `config`'s scenarios (blind ones) into `out`,
+    with `hyperparams` (the YAML key used, its entry), saving `last` / `best` safetensors checkpoints
+    after every validation; resumable from `last`.  Called by `agents.train.train`."""
     from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
-    from agents.config import TrainResult
-    from agents.train import _check_out, load_hyperparams
     from deint_env import __version__
     from deint_env.envs.mixed import select_entries, split_seeds
     from deint_env.simulate import simulate_many
     from deint_env.suites import load_suite
 
-    out = _check_out(Path(config.out), config.into_package)
     entries = select_entries(config.suite, config.scenarios, config.tags)
     anchored = [n for n, e in entries if not e.spec.blind]
     if anchored:
         raise DeintError(f"seq trains on blind scenarios only; {anchored[0]} is anchored")
-    keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
-    hp_key, entry = load_hyperparams("seq", keys, config.hyperparams_file)
+    hp_key, entry = hyperparams
     p = SeqParams.from_yaml(entry, f"hyper-parameters {hp_key!r}")
     layout = SeqLayout(window=p.window, context=p.context, lag=config.lag)
     total = int(config.timesteps or p.n_timesteps)

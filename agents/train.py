@@ -202,7 +202,9 @@ def train(config: TrainConfig) -> TrainResult:
         raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
     if config.algo == "seq":  # the supervised pointer labeller: its own loop, no SB3 model (agents.sequence)
         from agents.sequence import train_seq
-        return train_seq(config)
+        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
+        return train_seq(config, _check_out(Path(config.out), config.into_package),
+                         load_hyperparams("seq", keys, config.hyperparams_file))
     run = _Run(config)
     run.out.mkdir(parents=True, exist_ok=True)
     if config.algo == "dagger":

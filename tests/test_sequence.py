@@ -91,6 +91,8 @@ def test_checkpoint_round_trip_and_policy_matches_batch_labelling(tmp_path, batc
     ck = load_checkpoint(tmp_path / "s.safetensors")
     assert ck.key == key and ck.meta.architecture["name"] == "seq-pointer"
     pol = SequencePolicy(str(tmp_path / "s.safetensors"), batch=batch)
+    from deint_env.policies import make_policy
+    assert isinstance(make_policy(f"agent:checkpoint={tmp_path / 's.safetensors'}"), SequencePolicy)
     assert pol.lag == LAYOUT.lag + batch - 1 and pol.version.startswith(key)
     for k, v in net.state_dict().items():
         assert torch.equal(pol.net.state_dict()[k], v)

@@ -8,15 +8,20 @@ mean spacing) and the lattice evidence for a train of PRI d through i and j — 
 pulses come to t_i - m d (m = 1..3), to the midpoint (a train of PRI d/2) and to t_j + m d (the
 look-ahead) — plus the amplitude difference when the pulses carry one.  A Transformer encoder over
 the window's tokens (and learned "new" and "spurious" tokens) lets candidates compare (a gap against
-its harmonics, two candidates of like gap); one linear read-out gives the pointer logits.
+its harmonics, two candidates of like gap); one linear read-out gives the pointer logits, and a
+chain head adds, per candidate, how its own chain's last two intervals agree with d.
 
 It is trained on simulator truth (`deint_env.labels.true_predecessors`) on train seeds only, with a
-cross-entropy over the pointer classes.  Decoding turns pointers into blind labels: labels are
+cross-entropy over the pointer classes; the chain features come from the true chains (a share of
+links hidden) or, for a share of episodes (`own_chains`), from the agent's own decoding, so that it
+learns how far its own chains can be trusted.  Decoding turns pointers into blind labels: labels are
 chains, pulse j joins the chain whose last pulse scores highest (a pulse already continued is no
 longer offered, so every chain stays a chain), or opens one on a fresh label (else the least
-recently used), or is called spurious.  Features depend only on pulses up to j + lag, so a label
-never depends on pulses beyond the lag.  The scores of a batch of pulses are one forward pass:
-`batch=B` scores B pulses at once (lag + B - 1) for speed.
+recently used), or is called spurious; when its favourite predecessor is already continued (by more
+than `margin` logits) it opens a chain rather than take another chain's place.  Features depend only
+on pulses up to j + lag, so a label never depends on pulses beyond the lag.  The encoder runs over a
+batch of pulses in one pass (`batch=B` encodes B pulses at once, lag + B - 1, for speed); the chain
+head and the decoder run pulse by pulse.
 
 Anchored mode (priors given) is not played: mapping chains to the priors' sources is left undone.
 """

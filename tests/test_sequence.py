@@ -183,7 +183,6 @@ def label_links(labels):
     return np.array(out)
 
 
-@pytest.mark.skipif(not CHECKPOINT.is_file(), reason="the zoo checkpoint is shipped with the package")
 def test_shipped_checkpoint_labels_an_independent_pulse_file(tmp_path, capsys):
     toa, src = independent_pulses([13.0, 31.0, 57.0], 600, 0.1, np.random.default_rng(11))
     (tmp_path / "p.csv").write_text("toa\n" + "\n".join(repr(float(t)) for t in toa) + "\n")

@@ -8,11 +8,14 @@ Checkpoints are single safetensors files (`agents.checkpoint`); loading one neve
 from deint_env.policies import PolicyInfo
 
 POLICIES = (
-    PolicyInfo("agent", "agents.policy:AgentPolicy", kind="learned", extra="rl", required=("checkpoint",),
+    PolicyInfo("agent", "agents.policy:agent", kind="learned", extra="rl", required=("checkpoint",),
                description="a learned agent from a deint checkpoint file (agent:checkpoint=PATH.safetensors)"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),
+    PolicyInfo("seq", "agents.sequence:SequencePolicy", kind="learned", modes=("blind",), extra="rl",
+               description="supervised pointer sequence labeller (Transformer over the pulse window, look-ahead = lag 32; "
+                           "agents/checkpoints/seq-blind-v0.safetensors, trained on blind-v0's train seeds): blind only"),
     PolicyInfo("ppo", "agents.policy:ppo", kind="learned", modes=("anchored",), extra="rl",
                description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario"),
 )

@@ -119,6 +119,16 @@ class AgentPolicy:
         return int(tok.env_actions(np.array([action]), self._spurious)[0])
 
 
+def agent(checkpoint: str, deterministic: bool = True) -> Any:
+    """`agent:checkpoint=PATH`: the agent of any deint checkpoint, rebuilt as its architecture says
+    (the sequence labeller's by `agents.sequence.SequencePolicy`, which is always deterministic)."""
+    from agents.sequence import ARCHITECTURE, SequencePolicy
+
+    if load_checkpoint(checkpoint).meta.architecture.get("name") == ARCHITECTURE:
+        return SequencePolicy(checkpoint)
+    return AgentPolicy(checkpoint, deterministic)
+
+
 def dagger(deterministic: bool = True) -> AgentPolicy:
     """The zoo's DAgger agent for core-v0 (`deint train --suite core-v0 --algo dagger`)."""
     return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)

@@ -42,7 +42,7 @@ from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger", "bc")
+ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger", "bc", "seq")
 IMITATION = ("dagger", "bc")  # agents.imitation; their YAML is dagger.yml
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
@@ -218,6 +218,11 @@ def train(config: TrainConfig) -> TrainResult:
         raise DeintError(f"--algo {config.algo!r} is unknown; known: {', '.join(ALGOS)}")
     if config.expert != TRUTH and config.algo not in IMITATION:
         raise DeintError(f"--expert applies to {' and '.join(IMITATION)}, not to --algo {config.algo}")
+    if config.algo == "seq":  # the supervised pointer labeller: its own loop, no SB3 model (agents.sequence)
+        from agents.sequence import train_seq
+        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
+        return train_seq(config, _check_out(Path(config.out), config.into_package),
+                         load_hyperparams("seq", keys, config.hyperparams_file))
     run = _Run(config)
     if config.algo in IMITATION:
         from agents.experts import make_expert

@@ -177,7 +177,9 @@ def test_shipped_ppo_checkpoint_is_safetensors():
 def test_every_shipped_checkpoint_loads_and_matches_its_suites(path):
     from deint_env.suites import load_suite
 
-    agent = AgentPolicy(str(path))
+    from deint_env.policies import make_policy
+
+    agent = make_policy(f"agent:checkpoint={path}")  # the generic spec rebuilds any architecture
     assert agent.meta.suite_hashes == {s: load_suite(s).content_hash for s in agent.meta.suite_hashes}
     assert all(s.split("/")[0] in agent.meta.suite_hashes for s in agent.meta.scenarios)
     assert agent.meta.train_seeds[1] <= 100_000  # train seeds only; test seeds start at 1,000,000

@@ -32,7 +32,12 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Track initiation.  In dense scenes the first arrivals of many sources fall within each other's
   phase gates, and a tracker without look-ahead lets a neighbour capture a source's first pulse.  A
   track's first pulse is judged by `look_start` (6) arrivals ahead, and until the longest prior period
-  has passed the beam is `start_beam` wide.
+  has passed the beam is `start_beam` wide.  In a crowded start (32 sources: a first arrival's gate
+  holds ~20 pulses) that is not enough: each track's 6-arrival look-ahead, judged alone, finds a
+  neighbour's pulse train (or a harmonic of one) about as good as its own.  There the tracks are
+  started jointly (`_initiate`): each track's best chain of `look_init` (12) arrivals over the
+  buffered pulses, the best-explained track first, its pulses then taken (a greedy assignment with
+  pairwise exchanges), and each started track's prior becomes its chain's first pulse and period.
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
   restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
   period), its period kept (or reset to the prior when it has left the prior by more than 2
@@ -145,7 +150,7 @@ class Settings(NamedTuple):
     look_init: int  # and the arrivals its pulse chains look ahead
 
 
-_BRANCH = 3  # look-ahead: pulses tried per arrival (the nearest in the gate)
+_BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
 _INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
 
@@ -185,23 +190,24 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             continue
         st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0  # the miss branch
         top += 1
-        # hits: the _BRANCH nearest pulses in the gate (merging outwards from the predicted arrival),
-        # pushed farthest first so that the nearest is searched first (a good bound early)
+        # hits: at most _BRANCH pulses of the gate, a window around the predicted arrival (the last pulse
+        # before it and the next ones), pushed farthest first so that the nearest is searched first (a
+        # good bound early)
+        lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
+        hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
         c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+        if hi - lo > _BRANCH:
+            lo = max(lo, c - _BRANCH // 2)
+            hi = min(hi, lo + _BRANCH)
         left, right = c - 1, c
-        nb = 0
-        while nb < _BRANCH:
-            go_left = left > k and pred - toa[left] <= half
-            go_right = right < n_seen and toa[right] - pred <= half
-            if go_right and (not go_left or toa[right] - pred < pred - toa[left]):
-                order[nb] = right
+        nb = hi - lo
+        for r in range(nb):  # nearest first, merging outwards from the predicted arrival
+            if right < hi and (left < lo or toa[right] - pred < pred - toa[left]):
+                order[r] = right
                 right += 1
-            elif go_left:
-                order[nb] = left
-                left -= 1
             else:
-                break
-            nb += 1
+                order[r] = left
+                left -= 1
         for r in range(nb - 1, -1, -1):
             j = order[r]
             e = toa[j] - pred
@@ -215,7 +221,7 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
 
 
 @njit(cache=True, nogil=True)
-def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit):
+def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
     """Track initiation: the best log-likelihood ratio (against "all spurious") of a track whose first
     arrival is pulse j, over its first look + 1 arrivals among pulses 0..end-1 not `used` by tracks
     already started: a beam search (_INIT_BEAM partial chains, the _INIT_BRANCH nearest pulses and a
@@ -248,7 +254,7 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit
             if d == 0:
                 c_par[nc], c_j[nc] = m, j
                 e = toa[j] - pred
-                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s) - log_rho
+                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
                 nc += 1
                 continue
             if pred + half > newest:  # nothing known yet: the chain ends as it is
@@ -273,7 +279,7 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit
                     continue
                 e = toa[jj] - pred
                 c_par[nc], c_j[nc] = m, jj
-                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s) - log_rho
+                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
                 nc += 1
                 taken += 1
         order = np.argsort(-c_v[:nc], kind="mergesort")
@@ -310,8 +316,8 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit
 
 
 @njit(cache=True, nogil=True)
-def _best_start(toa, end, i, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit):
-    """The best first pulse of track i (prior block `blk`) among the unused pulses in its first
+def _best_start(toa, end, blk, look, cfg, log_q, log_1mq, used, path, fit):
+    """The best first pulse of a track (prior block `blk`) among the unused pulses in its first
     arrival's gate, and its chain's log-likelihood ratio (-inf: none)."""
     t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
     s = pxx + 2.0 * ptx + ptt + cfg.interval_var + cfg.jitter_var
@@ -321,7 +327,7 @@ def _best_start(toa, end, i, blk, look, cfg, log_q, log_1mq, log_rho, used, path
     best, best_j = -np.inf, -1
     for j in range(lo, hi):
         if not used[j]:
-            v = _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+            v = _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit)
             if v > best:
                 best, best_j = v, j
     return best, best_j
@@ -353,7 +359,7 @@ def _in_first_gate(blk, y, cfg):
 
 
 @njit(cache=True, nogil=True)
-def _initiate(toa, end, blk, cfg, log_q, log_1mq, log_rho):
+def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     """Joint track initiation on the first `end` pulses (a dense start puts many sources' first arrivals
     in each other's phase gates; judged one track at a time, a track takes a neighbour's pulse train as
     readily as its own).  Greedy: the track whose best pulse chain (`_chain`) explains the buffered
@@ -378,19 +384,19 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq, log_rho):
     for i in range(n):
         s = blk[i, P_XX] + 2.0 * blk[i, P_TX] + blk[i, P_TT] + cfg.interval_var + cfg.jitter_var
         if 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
-            val[i], first[i] = _best_start(toa, end, i, blk[i], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+            val[i], first[i] = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
     while True:
         i = np.argmax(val)
         if val[i] == -np.inf:
             break
-        v, j = _best_start(toa, end, i, blk[i], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+        v, j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
         val[i] = -np.inf
         if j < 0:
             continue
         if v < np.max(val):  # another track's (stale, so upper) value is higher: judge that one first
             val[i], first[i] = v, j
             continue
-        _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+        _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
         if not _own_train(path):
             continue
         _mark(path, used, True)
@@ -407,13 +413,13 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq, log_rho):
                 _mark(paths[a], used, False)
                 _mark(paths[b], used, False)
                 # the two assignments judged alike: a's chain first, then b's among the pulses left
-                now = _chain(toa, end, first[a], blk[a], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+                now = _chain(toa, end, first[a], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
                 _mark(path, used, True)
-                now += _chain(toa, end, first[b], blk[b], look, cfg, log_q, log_1mq, log_rho, used, path2, fit2)
+                now += _chain(toa, end, first[b], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
                 _mark(path, used, False)
-                alt = _chain(toa, end, first[b], blk[a], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+                alt = _chain(toa, end, first[b], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
                 _mark(path, used, True)
-                alt += _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, log_rho, used, path2, fit2)
+                alt += _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
                 _mark(path, used, False)
                 if alt > now and _own_train(path) and _own_train(path2):
                     first[a], first[b] = first[b], first[a]
@@ -430,12 +436,12 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq, log_rho):
                 if not (started[a] and _in_first_gate(blk[b], toa[first[a]], cfg)):
                     continue
                 _mark(paths[a], used, False)
-                _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, log_rho, used, path, fit)
+                _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path, fit)
                 if _own_train(path):
                     _mark(path, used, True)
-                    v, j = _best_start(toa, end, a, blk[a], look, cfg, log_q, log_1mq, log_rho, used, path2, fit2)
+                    v, j = _best_start(toa, end, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
                     if j >= 0:
-                        _chain(toa, end, j, blk[a], look, cfg, log_q, log_1mq, log_rho, used, path2, fit2)
+                        _chain(toa, end, j, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
                     if j >= 0 and _own_train(path2):
                         started[b], first[b], paths[b], fits[b] = True, first[a], path, fit
                         first[a], paths[a], fits[a] = j, path2, fit2
@@ -698,7 +704,7 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
         log_q, log_1mq, log_rho = _rates(cfg, counts)
         if k == 0 and cfg.initiate:  # the pulses up to y + ahead (all buffered by now, whatever the batching)
             end = min(cfg.reserve + 1, np.searchsorted(toa[:n_seen], y + ahead, side="right"))
-            _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq, 0.0)
+            _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
         if swapped:
             a, b = nxt, cur
         else:

@@ -35,7 +35,7 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   has passed the beam is `start_beam` wide.  In a crowded start (32 sources: a first arrival's gate
   holds ~20 pulses) that is not enough: each track's 6-arrival look-ahead, judged alone, finds a
   neighbour's pulse train (or a harmonic of one) about as good as its own.  There the tracks are
-  started jointly (`_initiate`): each track's best chain of `look_init` (12) arrivals over the
+  started jointly (`_initiate`): each track's best chain of `look_init` (16) arrivals over the
   buffered pulses, the best-explained track first, its pulses then taken (a greedy assignment with
   pairwise exchanges), and each started track's prior becomes its chain's first pulse and period.
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
@@ -757,7 +757,7 @@ class MHT:
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3, dense: float = 12.0, look_init: int = 12):
+                 dead: int = 3, dense: float = 12.0, look_init: int = 16):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):

@@ -222,11 +222,12 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
 
 @njit(cache=True, nogil=True)
 def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
-    """Track initiation: the best log-likelihood ratio (against "all spurious") of a track whose first
-    arrival is pulse j, over its first look + 1 arrivals among pulses 0..end-1 not `used` by tracks
-    already started: a beam search (_INIT_BEAM partial chains, the _INIT_BRANCH nearest pulses and a
-    miss per arrival; a hit log(1 - q) + log N(e; 0, S) - log rho, a miss log q; an arrival beyond
-    pulse end-1 ends the chain).  The best chain's pulses go to `path` (-1: a miss)."""
+    """Track initiation: the best log-likelihood of a track (prior block `blk`) whose first arrival is
+    pulse j, over its first look + 1 arrivals among pulses 0..end-1 not `used` by tracks already
+    started: a beam search (_INIT_BEAM partial chains, the _INIT_BRANCH nearest unused pulses and a
+    miss per arrival; a hit log(1 - q) + log N(e; 0, S), a miss log q; an arrival beyond pulse end-1
+    ends the chain).  The best chain's pulses go to `path` (-1: a miss, -2: beyond the buffer), its
+    final KF block to `fit`."""
     t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
     jv, iv = cfg.jitter_var, cfg.interval_var
     m_cap = _INIT_BEAM * (_INIT_BRANCH + 1)
@@ -368,7 +369,7 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     tracks whose first pulses lie in each other's gates swap them when the swapped chains explain the
     pulses better together (two sources of similar period: the greedy gives the first track judged the
     train its prior fits best, not the pair's best assignment).  A started track's prior phase becomes
-    its chain's first pulse (deviation 3 sigma_w) and its period the chain's fit, so the beam starts it
+    its chain's first pulse (deviation sigma_w) and its period the chain's fit, so the beam starts it
     there.  Only tracks whose first arrival's gate is narrower than a period take part; a track with no
     pulse train of its own (`_own_train`) is left to the beam."""
     n = blk.shape[0]
@@ -454,7 +455,7 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
             break
     for i in range(n):
         if started[i]:
-            # the prior x_{1|0}: the phase at the first pulse (deviation 3 sigma_w), the period the
+            # the prior x_{1|0}: the phase at the first pulse (deviation sigma_w), the period the
             # chain's fit (its variance 4 times the fit's): tau = phi - T
             t = fits[i, PERIOD]
             var_t = 4.0 * fits[i, P_TT]

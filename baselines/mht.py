@@ -752,8 +752,9 @@ class MHT:
     they leave unknown; "estimate": estimate both online whatever the priors say), `batch` (pulses
     buffered per call of the compiled driver; labels do not depend on it), `dead` (arrivals a track
     must have missed in a row before it may restart), `dense` (tracks are started jointly, `_initiate`,
-    when the first arrivals' gates hold this many pulses on average: 32 sources of scale-v0 hold ~21,
-    16 sources ~8, core-v0 at most ~6, where the beam's own start is better; 0: always), `look_init`
+    when every track's phase is known to within a period and the first arrivals' gates hold this many
+    pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
+    beam's own start is as good; 0: whenever the phases are known), `look_init`
     (arrivals of each pulse chain judged by the joint start)."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
@@ -805,11 +806,14 @@ class MHT:
         t_max = float(np.max(priors.period))
         stated = self.rates == "priors"
         # a dense start: the first arrivals' gates hold `dense` pulses or more on average (the sources'
-        # pulse rate times the gate's width), so tracks are started jointly (`_initiate`)
+        # pulse rate times the gate's width), so tracks are started jointly (`_initiate`) -- when every
+        # track can take part (its first gate narrower than its period: a track whose phase is unknown
+        # would compete for the pulses outside the joint assignment)
         p = self.prior
         first_s = p[:, P_XX] + 2.0 * p[:, P_TX] + p[:, P_TT] + model.interval_var + model.jitter_var
-        crowd = float(np.mean(2.0 * self.gate * np.sqrt(first_s))) * float(np.sum(1.0 / priors.period))
-        initiate = crowd >= self.dense
+        width = 2.0 * self.gate * np.sqrt(first_s)
+        initiate = (bool(np.all(width < p[:, PERIOD]))
+                    and float(np.mean(width)) * float(np.sum(1.0 / priors.period)) >= self.dense)
         self.cfg = Settings(
             gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
             log_gap=math.log(self.p_gap), pulse_rate=float(np.sum(1.0 / priors.period)),

@@ -32,7 +32,12 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Track initiation.  In dense scenes the first arrivals of many sources fall within each other's
   phase gates, and a tracker without look-ahead lets a neighbour capture a source's first pulse.  A
   track's first pulse is judged by `look_start` (6) arrivals ahead, and until the longest prior period
-  has passed the beam is `start_beam` wide.
+  has passed the beam is `start_beam` wide.  In a crowded start (32 sources: a first arrival's gate
+  holds ~20 pulses) that is not enough: each track's 6-arrival look-ahead, judged alone, finds a
+  neighbour's pulse train (or a harmonic of one) about as good as its own.  There the tracks are
+  started jointly (`_initiate`): each track's best chain of `look_init` (16) arrivals over the
+  buffered pulses, the best-explained track first, its pulses then taken (a greedy assignment with
+  pairwise exchanges), and each started track's prior becomes its chain's first pulse and period.
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
   restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
   period), its period kept (or reset to the prior when it has left the prior by more than 2
@@ -141,9 +146,12 @@ class Settings(NamedTuple):
     look: int  # and later
     dead: int  # arrivals a track must have missed in a row before it may restart
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
+    initiate: bool  # joint track initiation on the buffered start (`_initiate`)
+    look_init: int  # and the arrivals its pulse chains look ahead
 
 
-_BRANCH = 3  # look-ahead: pulses tried per arrival (the nearest in the gate)
+_BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
+_INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
 
 
@@ -163,6 +171,7 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
     st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
     st[0, 5], st[0, 6], st[0, 7] = 1.0, 0.0, 0.0
     top = 1
+    order = np.empty(_BRANCH, np.int64)
     best = -1e300
     while top > 0:
         top -= 1
@@ -179,26 +188,27 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             continue
         if total + (look - depth) * most <= best:
             continue
-        lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
-        hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
-        if hi - lo > _BRANCH:  # keep the _BRANCH nearest
-            c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
-            lo = max(lo, c - _BRANCH // 2)
-            hi = min(hi, lo + _BRANCH)
         st[top, 5], st[top, 6], st[top, 7] = steps + 1.0, total + log_q, depth + 1.0  # the miss branch
         top += 1
-        # hits, the farthest pushed first so the nearest is searched first (a good bound early)
+        # hits: at most _BRANCH pulses of the gate, a window around the predicted arrival (the last pulse
+        # before it and the next ones), pushed farthest first so that the nearest is searched first (a
+        # good bound early)
+        lo = np.searchsorted(toa[k + 1:n_seen], pred - half) + k + 1
+        hi = np.searchsorted(toa[k + 1:n_seen], pred + half) + k + 1
         c = np.searchsorted(toa[k + 1:n_seen], pred) + k + 1
+        if hi - lo > _BRANCH:
+            lo = max(lo, c - _BRANCH // 2)
+            hi = min(hi, lo + _BRANCH)
         left, right = c - 1, c
-        order = np.empty(hi - lo, np.int64)
-        for r in range(hi - lo):  # nearest first, merging outwards from the predicted arrival
+        nb = hi - lo
+        for r in range(nb):  # nearest first, merging outwards from the predicted arrival
             if right < hi and (left < lo or toa[right] - pred < pred - toa[left]):
                 order[r] = right
                 right += 1
             else:
                 order[r] = left
                 left -= 1
-        for r in range(hi - lo - 1, -1, -1):
+        for r in range(nb - 1, -1, -1):
             j = order[r]
             e = toa[j] - pred
             g, r_s = e / s, jitter_var / s
@@ -208,6 +218,252 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             st[top, 7] = depth + 1.0
             top += 1
     return best
+
+
+@njit(cache=True, nogil=True)
+def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
+    """Track initiation: the best log-likelihood of a track (prior block `blk`) whose first arrival is
+    pulse j, over its first look + 1 arrivals among pulses 0..end-1 not `used` by tracks already
+    started: a beam search (_INIT_BEAM partial chains, the _INIT_BRANCH nearest unused pulses and a
+    miss per arrival; a hit log(1 - q) + log N(e; 0, S), a miss log q; an arrival beyond pulse end-1
+    ends the chain).  The best chain's pulses go to `path` (-1: a miss, -2: beyond the buffer), its
+    final KF block to `fit`."""
+    t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
+    jv, iv = cfg.jitter_var, cfg.interval_var
+    m_cap = _INIT_BEAM * (_INIT_BRANCH + 1)
+    st = np.empty((_INIT_BEAM, 6))  # t, tau, ptt, ptx, pxx, steps since the last hit
+    tot = np.empty(_INIT_BEAM)
+    pth = np.full((_INIT_BEAM, look + 1), -1, np.int64)
+    nst = np.empty((_INIT_BEAM, 6))
+    ntot = np.empty(_INIT_BEAM)
+    npth = np.empty((_INIT_BEAM, look + 1), np.int64)
+    c_par = np.empty(m_cap, np.int64)
+    c_j = np.empty(m_cap, np.int64)
+    c_v = np.empty(m_cap)
+    # the first arrival: pulse j (one step from the prior block, whose tau is the phase minus T)
+    size = 1
+    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4], st[0, 5] = t, tau, ptt, ptx, pxx, 1.0
+    tot[0] = 0.0
+    newest = toa[end - 1]
+    for d in range(look + 1):
+        nc = 0
+        for m in range(size):
+            t, tau, ptt, ptx, pxx, steps = st[m, 0], st[m, 1], st[m, 2], st[m, 3], st[m, 4], st[m, 5]
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            pred = tau + steps * t
+            half = math.sqrt(cfg.gate2 * s)
+            if d == 0:
+                c_par[nc], c_j[nc] = m, j
+                e = toa[j] - pred
+                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                nc += 1
+                continue
+            if pred + half > newest:  # nothing known yet: the chain ends as it is
+                c_par[nc], c_j[nc], c_v[nc] = m, -2, tot[m]
+                nc += 1
+                continue
+            c_par[nc], c_j[nc], c_v[nc] = m, -1, tot[m] + log_q
+            nc += 1
+            lo = np.searchsorted(toa[:end], pred - half)
+            hi = np.searchsorted(toa[:end], pred + half)
+            c = np.searchsorted(toa[:end], pred)
+            left, right = c - 1, c
+            taken = 0
+            while taken < _INIT_BRANCH and (left >= lo or right < hi):  # the nearest unused pulses
+                if right < hi and (left < lo or toa[right] - pred < pred - toa[left]):
+                    jj = right
+                    right += 1
+                else:
+                    jj = left
+                    left -= 1
+                if used[jj]:
+                    continue
+                e = toa[jj] - pred
+                c_par[nc], c_j[nc] = m, jj
+                c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                nc += 1
+                taken += 1
+        order = np.argsort(-c_v[:nc], kind="mergesort")
+        new = 0
+        for r in order:
+            if new == _INIT_BEAM:
+                break
+            m, jj = c_par[r], c_j[r]
+            t, tau, ptt, ptx, pxx, steps = st[m, 0], st[m, 1], st[m, 2], st[m, 3], st[m, 4], st[m, 5]
+            npth[new] = pth[m]
+            ntot[new] = c_v[r]
+            if jj == -2:
+                nst[new] = st[m]
+                npth[new, d] = -2
+            elif jj == -1:
+                nst[new, :5] = st[m, :5]
+                nst[new, 5] = steps + 1.0
+                npth[new, d] = -1
+            else:  # (2.8) `steps` times, then (2.15)
+                s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+                p_tx = ptx + steps * ptt
+                p_xx = s - jv
+                e = toa[jj] - (tau + steps * t)
+                g, r_s = e / s, jv / s
+                nst[new, 0], nst[new, 1] = t + p_tx * g, tau + steps * t + p_xx * g
+                nst[new, 2], nst[new, 3], nst[new, 4], nst[new, 5] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, 1.0
+                npth[new, d] = jj
+            new += 1
+        size = new
+        st[:size], tot[:size], pth[:size] = nst[:size], ntot[:size], npth[:size]
+    path[:] = pth[0]
+    fit[:] = st[0, :5]
+    return tot[0]
+
+
+@njit(cache=True, nogil=True)
+def _best_start(toa, end, blk, look, cfg, log_q, log_1mq, used, path, fit):
+    """The best first pulse of a track (prior block `blk`) among the unused pulses in its first
+    arrival's gate, and its chain's log-likelihood ratio (-inf: none)."""
+    t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
+    s = pxx + 2.0 * ptx + ptt + cfg.interval_var + cfg.jitter_var
+    half = math.sqrt(cfg.gate2 * s)
+    lo = np.searchsorted(toa[:end], tau + t - half)
+    hi = np.searchsorted(toa[:end], tau + t + half)
+    best, best_j = -np.inf, -1
+    for j in range(lo, hi):
+        if not used[j]:
+            v = _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit)
+            if v > best:
+                best, best_j = v, j
+    return best, best_j
+
+
+@njit(cache=True, nogil=True)
+def _own_train(path):
+    """A chain is a track's own pulse train when at least half of its known arrivals (and 2) are hits."""
+    hits = 0
+    known = 0
+    for jj in path:
+        hits += jj >= 0
+        known += jj != -2
+    return hits >= max(2, (known + 1) // 2)
+
+
+@njit(cache=True, nogil=True)
+def _mark(path, used, flag):
+    for jj in path:
+        if jj >= 0:
+            used[jj] = flag
+
+
+@njit(cache=True, nogil=True)
+def _in_first_gate(blk, y, cfg):
+    s = blk[P_XX] + 2.0 * blk[P_TX] + blk[P_TT] + cfg.interval_var + cfg.jitter_var
+    e = y - (blk[TAU] + blk[PERIOD])
+    return e * e <= cfg.gate2 * s
+
+
+@njit(cache=True, nogil=True)
+def _initiate(toa, end, blk, cfg, log_q, log_1mq):
+    """Joint track initiation on the first `end` pulses (a dense start puts many sources' first arrivals
+    in each other's phase gates; judged one track at a time, a track takes a neighbour's pulse train as
+    readily as its own).  Greedy: the track whose best pulse chain (`_chain`) explains the buffered
+    pulses best is started first, its chain's pulses are then unavailable to the others, and so on
+    (a lazy greedy: removing pulses only lowers a chain's value).  Then pairwise exchanges: two started
+    tracks whose first pulses lie in each other's gates swap them when the swapped chains explain the
+    pulses better together (two sources of similar period: the greedy gives the first track judged the
+    train its prior fits best, not the pair's best assignment).  A started track's prior phase becomes
+    its chain's first pulse (deviation sigma_w) and its period the chain's fit, so the beam starts it
+    there.  Only tracks whose first arrival's gate is narrower than a period take part; a track with no
+    pulse train of its own (`_own_train`) is left to the beam."""
+    n = blk.shape[0]
+    look = cfg.look_init
+    used = np.zeros(end, np.bool_)
+    path = np.empty(look + 1, np.int64)
+    fit = np.empty(5)
+    val = np.full(n, -np.inf)
+    first = np.full(n, -1, np.int64)
+    paths = np.full((n, look + 1), -1, np.int64)
+    fits = np.empty((n, 5))
+    started = np.zeros(n, np.bool_)
+    for i in range(n):
+        s = blk[i, P_XX] + 2.0 * blk[i, P_TX] + blk[i, P_TT] + cfg.interval_var + cfg.jitter_var
+        if 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
+            val[i], first[i] = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
+    while True:
+        i = np.argmax(val)
+        if val[i] == -np.inf:
+            break
+        v, j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
+        val[i] = -np.inf
+        if j < 0:
+            continue
+        if v < np.max(val):  # another track's (stale, so upper) value is higher: judge that one first
+            val[i], first[i] = v, j
+            continue
+        _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
+        if not _own_train(path):
+            continue
+        _mark(path, used, True)
+        started[i], first[i], paths[i], fits[i] = True, j, path, fit
+    path2 = np.empty(look + 1, np.int64)
+    fit2 = np.empty(5)
+    for _ in range(2):
+        swapped = False
+        for a in range(n):
+            for b in range(a + 1, n):
+                if not (started[a] and started[b] and _in_first_gate(blk[a], toa[first[b]], cfg)
+                        and _in_first_gate(blk[b], toa[first[a]], cfg)):
+                    continue
+                _mark(paths[a], used, False)
+                _mark(paths[b], used, False)
+                # the two assignments judged alike: a's chain first, then b's among the pulses left
+                now = _chain(toa, end, first[a], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
+                _mark(path, used, True)
+                now += _chain(toa, end, first[b], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
+                _mark(path, used, False)
+                alt = _chain(toa, end, first[b], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
+                _mark(path, used, True)
+                alt += _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
+                _mark(path, used, False)
+                if alt > now and _own_train(path) and _own_train(path2):
+                    first[a], first[b] = first[b], first[a]
+                    paths[a], fits[a], paths[b], fits[b] = path, fit, path2, fit2
+                    swapped = True
+                _mark(paths[a], used, True)
+                _mark(paths[b], used, True)
+        # a track left without a train of its own whose first gate holds a started track's first pulse:
+        # it takes that chain when the started track then finds another train of its own
+        for b in range(n):
+            if started[b] or first[b] < 0:
+                continue
+            for a in range(n):
+                if not (started[a] and _in_first_gate(blk[b], toa[first[a]], cfg)):
+                    continue
+                _mark(paths[a], used, False)
+                _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path, fit)
+                if _own_train(path):
+                    _mark(path, used, True)
+                    v, j = _best_start(toa, end, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
+                    if j >= 0:
+                        _chain(toa, end, j, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
+                    if j >= 0 and _own_train(path2):
+                        started[b], first[b], paths[b], fits[b] = True, first[a], path, fit
+                        first[a], paths[a], fits[a] = j, path2, fit2
+                        _mark(paths[a], used, True)
+                        swapped = True
+                        break
+                    _mark(path, used, False)
+                _mark(paths[a], used, True)
+        if not swapped:
+            break
+    for i in range(n):
+        if started[i]:
+            # the prior x_{1|0}: the phase at the first pulse (deviation sigma_w), the period the
+            # chain's fit (its variance 4 times the fit's): tau = phi - T
+            t = fits[i, PERIOD]
+            var_t = 4.0 * fits[i, P_TT]
+            blk[i, PERIOD] = t
+            blk[i, TAU] = toa[first[i]] - t
+            blk[i, P_TT] = var_t
+            blk[i, P_TX] = -var_t
+            blk[i, P_XX] = cfg.jitter_var + var_t
 
 
 @njit(cache=True, nogil=True)
@@ -447,6 +703,9 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
         if not ended and n_seen - 1 - k < cfg.reserve and newest < y + ahead:
             break
         log_q, log_1mq, log_rho = _rates(cfg, counts)
+        if k == 0 and cfg.initiate:  # the pulses up to y + ahead (all buffered by now, whatever the batching)
+            end = min(cfg.reserve + 1, np.searchsorted(toa[:n_seen], y + ahead, side="right"))
+            _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
         if swapped:
             a, b = nxt, cur
         else:
@@ -491,14 +750,19 @@ class MHT:
     `gate` (in innovation standard deviations), `p_gap` (a source switching off and on again: the most
     a run of misses costs), `rates` ("priors": the priors' missing/spurious rates, estimating those
     they leave unknown; "estimate": estimate both online whatever the priors say), `batch` (pulses
-    buffered per call of the compiled driver; labels do not depend on it)."""
+    buffered per call of the compiled driver; labels do not depend on it), `dead` (arrivals a track
+    must have missed in a row before it may restart), `dense` (tracks are started jointly, `_initiate`,
+    when every track's phase is known to within a period and the first arrivals' gates hold this many
+    pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
+    beam's own start is as good; 0: whenever the phases are known), `look_init`
+    (arrivals of each pulse chain judged by the joint start)."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3):
+                 dead: int = 3, dense: float = 12.0, look_init: int = 16):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
-                            ("dead", dead, 1)):
+                            ("dead", dead, 1), ("look_init", look_init, 1)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         if nscan > lag:
@@ -511,7 +775,10 @@ class MHT:
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
         self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
         self.look_start, self.look, self.dead = look_start, look, dead
+        if not dense >= 0:
+            raise ValueError(f"dense={dense!r} must be >= 0 (0: always start tracks jointly)")
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
+        self.dense, self.look_init = float(dense), look_init
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
@@ -538,16 +805,26 @@ class MHT:
         self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
         t_max = float(np.max(priors.period))
         stated = self.rates == "priors"
+        # a dense start: the first arrivals' gates hold `dense` pulses or more on average (the sources'
+        # pulse rate times the gate's width), so tracks are started jointly (`_initiate`) -- when every
+        # track can take part (its first gate narrower than its period: a track whose phase is unknown
+        # would compete for the pulses outside the joint assignment)
+        p = self.prior
+        first_s = p[:, P_XX] + 2.0 * p[:, P_TX] + p[:, P_TT] + model.interval_var + model.jitter_var
+        width = 2.0 * self.gate * np.sqrt(first_s)
+        initiate = (bool(np.all(width < p[:, PERIOD]))
+                    and float(np.mean(width)) * float(np.sum(1.0 / priors.period)) >= self.dense)
         self.cfg = Settings(
             gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
             log_gap=math.log(self.p_gap), pulse_rate=float(np.sum(1.0 / priors.period)),
             known_q=float(priors.missing_prob) if stated else math.nan,
             known_r=float(priors.spurious_rate) if stated else math.nan,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
-            horizon_start=(self.look_start + 0.5) * t_max * 1.05 + 4.0 * float(np.max(phase_std)),
+            horizon_start=(max(self.look_start, self.look_init if initiate else 0) + 0.5) * t_max * 1.05
+            + 4.0 * float(np.max(phase_std)),
             horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
             beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
-            look=self.look, dead=self.dead, reserve=self.lag - self.nscan)
+            look=self.look, dead=self.dead, reserve=self.lag - self.nscan, initiate=initiate, look_init=self.look_init)
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)

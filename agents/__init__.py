@@ -10,6 +10,10 @@ from deint_env.policies import PolicyInfo
 POLICIES = (
     PolicyInfo("agent", "agents.policy:AgentPolicy", kind="learned", extra="rl", required=("checkpoint",),
                description="a learned agent from a deint checkpoint file (agent:checkpoint=PATH.safetensors)"),
+    PolicyInfo("agent-beam", "agents.policy:BeamPolicy", kind="learned", modes=("anchored",), extra="rl",
+               required=("checkpoint",),
+               description="a track-network checkpoint decoded with a beam of its own log-probabilities "
+                           "(agent-beam:checkpoint=PATH,beam=8,decision_lag=8; lag = look-ahead + decision_lag)"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),

@@ -18,7 +18,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from agents.beam import VERSION as BEAM_VERSION
+from agents.beam import BeamDecoder
 from agents.checkpoint import Checkpoint, load_checkpoint
+from agents.fast_net import NumpyTrackNet
 from agents.networks import PulseLayout, action_scores, build_policy, layout_from_dict, load_weights
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
@@ -117,6 +120,47 @@ class AgentPolicy:
         action = self._choose(tok.observation(), tok.action_masks()[0])
         tok.label(np.array([action]))
         return int(tok.env_actions(np.array([action]), self._spurious)[0])
+
+
+class BeamPolicy:
+    """A track-network checkpoint decoded with a beam (`agents.beam`): `beam` hypotheses, each
+    pulse's label decided `decision_lag` pulses after the network first scores it; the policy's lag
+    is the network's look-ahead plus `decision_lag`.  `version` is the checkpoint's content hash and
+    the decoder's version."""
+
+    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8):
+        self.checkpoint = str(Path(checkpoint).resolve())
+        ck, _ = load_agent(self.checkpoint)
+        if ck.meta.architecture.get("name") != "track-net":
+            raise DeintError(f"checkpoint {checkpoint} holds a {ck.meta.architecture.get('name')!r} network; the "
+                             "beam decoder reads log-probabilities of a 'track-net' (actor-critic) network")
+        layout = layout_from_dict(ck.meta.features)
+        self.meta = ck.meta
+        self.version = f"{ck.key}/beam-{BEAM_VERSION}"
+        self._decoder = BeamDecoder(numpy_net(self.checkpoint), layout, beam, decision_lag)
+        self.lag = layout.lookahead + self._decoder.decision_lag
+
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        self._decoder.start(priors, bool(info.get("has_amplitude", False)))
+        self._n = priors.n_labels
+
+    def act(self, obs: dict[str, Any]) -> int:
+        label = self._decoder.step(float(np.asarray(obs["toa"]).reshape(-1)[0]),
+                                   float(np.asarray(obs["amplitude"]).reshape(-1)[0]), bool(obs["valid"]))
+        return 0 if label is None else label  # label n (spurious) is the env's spurious label n as well
+
+
+@functools.lru_cache(maxsize=8)
+def _numpy_net(path: str, mtime_ns: int, size: int) -> NumpyTrackNet:
+    ck, _ = _load(path, mtime_ns, size)
+    return NumpyTrackNet(ck.tensors, ck.meta.architecture.get("heads", 4))
+
+
+def numpy_net(checkpoint: str | os.PathLike) -> NumpyTrackNet:
+    """The checkpoint's actor as numpy matrices, once per process and file version."""
+    path = Path(checkpoint).resolve()
+    st = path.stat()
+    return _numpy_net(str(path), st.st_mtime_ns, st.st_size)
 
 
 def dagger(deterministic: bool = True) -> AgentPolicy:

@@ -6,13 +6,20 @@ track anchors, period estimates, counts, amplitude means); its score is the sum 
 log-probabilities of its labels, each computed from that hypothesis's own features.  For every pulse
 each of the (at most) B hypotheses is extended by every label the scenario has (its tracks and
 spurious), and the B best distinct extensions survive.  Two extensions are the same hypothesis for
-the future when every track last fired on the same pulse (equal anchors): only the better is kept.
+the future when every track last fired on the same pulse (equal anchors): with `merge` (the default)
+only the better is kept, which spends the beam on different futures rather than on relabellings of
+spurious pulses or on period estimates that differ in the last digits.
 The label of a pulse is decided `decision_lag` pulses after it is first scored (the best hypothesis's
 label), and hypotheses that labelled it otherwise are dropped, so the policy's lag is the network's
-look-ahead plus `decision_lag`.  `beam=1` is the greedy agent with its labels delayed.
+look-ahead plus `decision_lag`.  `beam=1` is the greedy agent with its labels delayed.  With `consistency` = w > 0 a hypothesis is
+ranked by its summed log-probabilities plus w times the log-probability, from the network's value
+head, that its state is still consistent (what DAgger's consistency loss trains, agents.imitation):
+a locally normalised score alone cannot tell a hypothesis that has gone wrong, since each step's
+probabilities sum to one whatever the state.
 
 Every score comes from the checkpoint's network (`agents.fast_net`, numpy); nothing here models
-pulses by hand.
+pulses by hand.  The hypotheses' feature state lives in a `TrackFeatures` (its rows), updated by the
+numba kernels of `agents.beam_kernels`, which compute what `TrackFeatures` does, pulse by pulse.
 """
 
 from __future__ import annotations
@@ -21,14 +28,12 @@ from typing import Any
 
 import numpy as np
 
+from agents.beam_kernels import extend, keep_rows, select, token_arrays
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.features import TrackFeatures, TrackLayout
 
 VERSION = 1  # bumped whenever the decoder's labels change for the same network
-# The per-hypothesis state of TrackFeatures (everything else is the same in every row: priors and
-# the pulse window), reordered when hypotheses are extended.
-_HYPOTHESIS_STATE = ("period", "anchor", "count", "span_time", "span_periods", "amp_mean")
 
 
 class BeamDecoder:
@@ -36,14 +41,16 @@ class BeamDecoder:
     raw observation `step(toa, amp, valid)` -> the decided label (token index: a track < n, or n =
     spurious) of the oldest undecided pulse, or None while nothing is decided yet."""
 
-    def __init__(self, net: Any, layout: TrackLayout, beam: int, decision_lag: int):
-        if isinstance(beam, bool) or not isinstance(beam, (int, np.integer)) or not 1 <= beam <= 256:
-            raise DeintError(f"beam={beam!r} is invalid: an integer in [1, 256]")
+    def __init__(self, net: Any, layout: TrackLayout, beam: int, decision_lag: int, merge: bool = True,
+                 consistency: float = 0.0):
+        if isinstance(beam, bool) or not isinstance(beam, (int, np.integer)) or not 1 <= beam <= 4096:
+            raise DeintError(f"beam={beam!r} is invalid: an integer in [1, 4096]")
         if (isinstance(decision_lag, bool) or not isinstance(decision_lag, (int, np.integer))
                 or not 0 <= decision_lag <= 1000):
             raise DeintError(f"decision_lag={decision_lag!r} is invalid: an integer in [0, 1000]")
         self.net, self.layout = net, layout
-        self.beam, self.decision_lag = int(beam), int(decision_lag)
+        self.beam, self.decision_lag, self.merge = int(beam), int(decision_lag), bool(merge)
+        self.consistency = float(consistency)
         self.feats = TrackFeatures(self.beam, layout)
         self.pending = np.zeros((self.beam, self.decision_lag + 1), np.int64)  # undecided labels per hypothesis
         self.n_pending = 0
@@ -73,36 +80,28 @@ class BeamDecoder:
         return self._decide() if self.n_pending else None
 
     def _extend(self) -> None:
-        f, k, n = self.feats, self.alive, self.n
-        tracks, pulse = f.arrays()
-        logp = self.net.log_probs(tracks[:k, :n], pulse[:k])  # (k, n + 1), column n = spurious
-        cand = (self.score[:k, None] + logp).ravel()
-        order = np.argsort(-cand, kind="stable")
-        parent, label = np.divmod(order, n + 1)
-        if k * (n + 1) > 1 and self.beam > 1:
-            # Dedup: an extension's future depends on when each of its tracks last fired.
-            key = f.anchor[parent, :n].copy()
-            hit = label < n
-            key[hit, label[hit]] = f.win_toa[0, 1]
-            _, first = np.unique(key, axis=0, return_index=True)
-            keep = np.sort(first)[:self.beam]  # first occurrences in score order: the best of each group
-            parent, label = parent[keep], label[keep]
-            new_score = cand[order[keep]]
-        else:
-            parent, label = parent[:self.beam], label[:self.beam]
-            new_score = cand[order[:self.beam]]
+        f, k, n, lay = self.feats, self.alive, self.n, self.layout
+        tracks, pulse = token_arrays(f.period, f.anchor, f.count, f.amp_mean, f.amp_scale, f.prior_period, k, n,
+                                     f.win_toa[0], f.win_amp[0], f.first_toa[0], int(f.labelled[0]), f.scalars[0],
+                                     bool(f.has_amp[0]), lay.version, lay.max_tracks, lay.lookahead)
+        logp, consistent = self.net.scores(tracks, pulse[None])  # (k, n + 1), column n = spurious; (k,)
+        t, amp = f.win_toa[0, 1], f.win_amp[0, 1]
+        cum = self.score[:k, None] + logp
+        rank = cum + self.consistency * consistent[:, None] if self.consistency else cum
+        parent, label, _ = select(rank, f.anchor, t, self.beam, self.merge and self.beam > 1)
+        new_score = cum[parent, label]
         m = len(parent)
-        for name in _HYPOTHESIS_STATE:
-            a = getattr(f, name)
-            a[:m] = a[parent]
         self.pending[:m] = self.pending[parent]
         self.pending[:m, self.n_pending] = label
         self.n_pending += 1
-        self.score[:m] = new_score - new_score[0]  # relative to the best, so sums never drift
+        self.score[:m] = new_score - new_score.max()  # relative, so sums never drift
         self.alive = m
-        actions = np.full(self.beam, self.layout.max_tracks, np.int64)  # rows beyond the beam: no track
-        actions[:m] = np.where(label < n, label, self.layout.max_tracks)
-        f.label(actions)
+        extend(parent, label, n, t, amp, f.period, f.anchor, f.count, f.span_time, f.span_periods, f.amp_mean,
+               f.prior_period)
+        # The labelled pulse becomes every row's "previous" one (as TrackFeatures.label does).
+        f.labelled += 1
+        f.win_toa[:, 0] = t
+        f.win_toa[:, 1] = np.nan
 
     def _decide(self) -> int:
         """The best hypothesis's label of the oldest undecided pulse; hypotheses disagreeing are dropped."""
@@ -110,13 +109,10 @@ class BeamDecoder:
         decided = int(self.pending[0, 0])
         keep = np.flatnonzero(self.pending[:k, 0] == decided)
         if len(keep) < k:
-            m = len(keep)
-            for name in _HYPOTHESIS_STATE:
-                a = getattr(self.feats, name)
-                a[:m] = a[keep]
-            self.pending[:m] = self.pending[keep]
-            self.score[:m] = self.score[keep]
-            self.alive = m
+            f = self.feats
+            keep_rows(keep, self.pending, self.score, f.period, f.anchor, f.count, f.span_time, f.span_periods,
+                      f.amp_mean)
+            self.alive = len(keep)
         self.pending[:, :-1] = self.pending[:, 1:]
         self.n_pending -= 1
         return decided

@@ -23,13 +23,14 @@ def _relu(x: np.ndarray) -> np.ndarray:
 
 
 class NumpyTrackNet:
-    """`log_probs(tracks (B, n, F), pulse (B, G))` -> (B, n + 1): log-softmax over the n tracks and
-    spurious (last column), as the torch network's masked logits give."""
+    """`log_probs(tracks (B, n, F), pulse (B or 1, G))` -> (B, n + 1): log-softmax over the n tracks
+    and spurious (last column), as the torch network's masked logits give.  One pulse row is shared
+    by all B rows (a beam's hypotheses all describe the same pulse)."""
 
     def __init__(self, tensors: dict[str, Any], heads: int):
-        w = {k[len(PREFIX):]: np.ascontiguousarray(v.detach().cpu().numpy() if hasattr(v, "detach") else v,
-                                                    dtype=np.float32)
-             for k, v in tensors.items() if k.startswith(PREFIX)}
+        w = {k[len(PREFIX):] if k.startswith(PREFIX) else k:
+             np.ascontiguousarray(v.detach().cpu().numpy() if hasattr(v, "detach") else v, dtype=np.float32)
+             for k, v in tensors.items()}
         # Linear layers as (in, out) matrices so x @ W needs no transpose per call.
         self.e0, self.b0 = w["embed.0.weight"].T.copy(), w["embed.0.bias"]
         self.e2, self.b2 = w["embed.2.weight"].T.copy(), w["embed.2.bias"]
@@ -46,10 +47,16 @@ class NumpyTrackNet:
         self.s2, self.sb2 = w["score.2.weight"].T.copy(), w["score.2.bias"]
         self.p0, self.pb0 = w["pool.0.weight"].T.copy(), w["pool.0.bias"]
         self.sp, self.spb = w["spurious.weight"].T.copy(), w["spurious.bias"]
+        # The value head: with DAgger's consistency loss, the logit that the hypothesis is still right.
+        self.v, self.vb = (w.get("value_net.weight"), w.get("value_net.bias"))
         self.d_model = d
         self.n_token = self.e0.shape[0]  # F + G
 
     def logits(self, tracks: np.ndarray, pulse: np.ndarray) -> np.ndarray:
+        return self.forward(tracks, pulse)[0]
+
+    def forward(self, tracks: np.ndarray, pulse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(logits (B, n + 1), value latent (B, d_model))."""
         b, n, f = tracks.shape
         g = pulse.shape[1]
         d = self.d_model
@@ -74,11 +81,17 @@ class NumpyTrackNet:
             var = (xc * xc).mean(-1, keepdims=True)
             h = xc / np.sqrt(var + np.float32(LAYER_NORM_EPS)) * self.ln_w + self.ln_b
         scores = (_relu(h @ self.s0 + self.sb0) @ self.s2)[..., 0] + self.sb2[0]
-        pooled = _relu(np.concatenate([h.mean(1), h.max(1), pulse], axis=1) @ self.p0 + self.pb0)
+        pooled = _relu(h.mean(1) @ self.p0[:d] + h.max(1) @ self.p0[d:2 * d] + (pulse @ self.p0[2 * d:] + self.pb0))
         spurious = pooled @ self.sp + self.spb
-        return np.concatenate([scores, spurious], axis=1)
+        return np.concatenate([scores, spurious], axis=1), pooled
 
     def log_probs(self, tracks: np.ndarray, pulse: np.ndarray) -> np.ndarray:
-        z = self.logits(tracks, pulse)
+        return self.scores(tracks, pulse)[0]
+
+    def scores(self, tracks: np.ndarray, pulse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(log-probabilities (B, n + 1), log sigmoid of the value head (B,))."""
+        z, pooled = self.forward(tracks, pulse)
         z = z - z.max(1, keepdims=True)
-        return z - np.log(np.exp(z).sum(1, keepdims=True))
+        logp = z - np.log(np.exp(z).sum(1, keepdims=True))
+        v = (pooled @ self.v[0] + self.vb[0]) if self.v is not None else np.zeros(len(z), np.float32)
+        return logp, -np.logaddexp(0.0, -v)

@@ -32,6 +32,7 @@ from deint_env.wrappers import FeatureTracker
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 PPO_CHECKPOINT = CHECKPOINT_DIR / "ppo-two-source.safetensors"
 DAGGER_CHECKPOINT = CHECKPOINT_DIR / "dagger-core-v0-lag3.safetensors"
+ZOO_CHECKPOINT = CHECKPOINT_DIR / "dagger-all-lag3.safetensors"  # core-v0 + robust-v0 + agile-v0, layout 3
 
 
 @functools.lru_cache(maxsize=8)
@@ -166,6 +167,12 @@ def numpy_net(checkpoint: str | os.PathLike) -> NumpyTrackNet:
 def dagger(deterministic: bool = True) -> AgentPolicy:
     """The zoo's DAgger agent for core-v0 (`deint train --suite core-v0 --algo dagger`)."""
     return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)
+
+
+def dagger_beam(beam: int = 8, decision_lag: int = 8) -> BeamPolicy:
+    """The zoo's agent for core-v0, robust-v0 and agile-v0 together: DAgger on their train seeds
+    (agents/hyperparams/dagger-all.yml), decoded with a beam."""
+    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag)
 
 
 def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:

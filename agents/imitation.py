@@ -9,6 +9,10 @@ the expert's label, and the network is fitted by cross-entropy on the aggregate 
 samples, oldest dropped).  In blind mode the right label depends on the learner's own track naming:
 the expert continues the track holding the pulse's true predecessor, or opens an unused one.  Checkpoints are the same single-file format as the RL agents
 (architecture `track-net`), so `agent:checkpoint=PATH` plays them and PPO can fine-tune them.
+With `consistency_weight` > 0 the value head is trained too (binary cross-entropy), to tell whether
+the state described is still consistent with the truth (each track's last label right and no wrong
+label among the last `consistency_window`): the beam decoder (agents.beam) scores whole hypotheses
+with it.
 """
 
 from __future__ import annotations

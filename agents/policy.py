@@ -33,6 +33,7 @@ CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 PPO_CHECKPOINT = CHECKPOINT_DIR / "ppo-two-source.safetensors"
 DAGGER_CHECKPOINT = CHECKPOINT_DIR / "dagger-core-v0-lag3.safetensors"
 ZOO_CHECKPOINT = CHECKPOINT_DIR / "dagger-all-lag3.safetensors"  # core-v0 + robust-v0 + agile-v0, layout 3
+ZOO_CONSISTENCY = 1.0
 
 
 @functools.lru_cache(maxsize=8)
@@ -126,10 +127,10 @@ class AgentPolicy:
 class BeamPolicy:
     """A track-network checkpoint decoded with a beam (`agents.beam`): `beam` hypotheses, each
     pulse's label decided `decision_lag` pulses after the network first scores it; the policy's lag
-    is the network's look-ahead plus `decision_lag`.  `version` is the checkpoint's content hash and
-    the decoder's version."""
+    is the network's look-ahead plus `decision_lag`; `consistency` weighs the value head's whole-hypothesis
+    score (agents.beam).  `version` is the checkpoint's content hash and the decoder's version."""
 
-    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8):
+    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8, consistency: float = 0.0):
         self.checkpoint = str(Path(checkpoint).resolve())
         ck, _ = load_agent(self.checkpoint)
         if ck.meta.architecture.get("name") != "track-net":
@@ -138,7 +139,10 @@ class BeamPolicy:
         layout = layout_from_dict(ck.meta.features)
         self.meta = ck.meta
         self.version = f"{ck.key}/beam-{BEAM_VERSION}"
-        self._decoder = BeamDecoder(numpy_net(self.checkpoint), layout, beam, decision_lag)
+        if consistency and not ck.meta.hyperparameters.get("consistency_weight"):
+            raise DeintError(f"consistency={consistency} needs a checkpoint whose value head was trained for it "
+                             f"(DAgger with consistency_weight > 0); {checkpoint} was not")
+        self._decoder = BeamDecoder(numpy_net(self.checkpoint), layout, beam, decision_lag, consistency=consistency)
         self.lag = layout.lookahead + self._decoder.decision_lag
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -169,10 +173,10 @@ def dagger(deterministic: bool = True) -> AgentPolicy:
     return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)
 
 
-def dagger_beam(beam: int = 8, decision_lag: int = 8) -> BeamPolicy:
+def dagger_beam(beam: int = 8, decision_lag: int = 8, consistency: float = ZOO_CONSISTENCY) -> BeamPolicy:
     """The zoo's agent for core-v0, robust-v0 and agile-v0 together: DAgger on their train seeds
     (agents/hyperparams/dagger-all.yml), decoded with a beam."""
-    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag)
+    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag, consistency)
 
 
 def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:

@@ -127,7 +127,7 @@ def test_zoo_agent_labels_an_outside_pulse_file(tmp_path, n):
     from deint_env.cli import main
 
     toa, src, priors = _independent_pulses(n, np.random.default_rng(n))
-    (tmp_path / "p.csv").write_text("toa\n" + "".join(f"{t!r}\n" for t in toa))
+    (tmp_path / "p.csv").write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
     (tmp_path / "pr.json").write_text(json.dumps(priors))
     assert main(["label", str(tmp_path / "p.csv"), "--policy", "dagger-beam", "--priors", str(tmp_path / "pr.json"),
                  "-o", str(tmp_path / "l.csv")]) == 0

@@ -17,7 +17,7 @@ head, that its state is still consistent (what DAgger's consistency loss trains,
 a locally normalised score alone cannot tell a hypothesis that has gone wrong, since each step's
 probabilities sum to one whatever the state.
 
-Every score comes from the checkpoint's network (`agents.fast_net`, numpy); nothing here models
+Every score comes from the checkpoint's network (`agents.fast_net`, one numba call per pulse); nothing here models
 pulses by hand.  The hypotheses' feature state lives in a `TrackFeatures` (its rows), updated by the
 numba kernels of `agents.beam_kernels`, which compute what `TrackFeatures` does, pulse by pulse.
 """
@@ -33,7 +33,7 @@ from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.features import TrackFeatures, TrackLayout
 
-VERSION = 1  # bumped whenever the decoder's labels change for the same network
+VERSION = 2  # bumped whenever the decoder's labels change for the same network
 
 
 class BeamDecoder:
@@ -84,7 +84,7 @@ class BeamDecoder:
         tracks, pulse = token_arrays(f.period, f.anchor, f.count, f.amp_mean, f.amp_scale, f.prior_period, k, n,
                                      f.win_toa[0], f.win_amp[0], f.first_toa[0], int(f.labelled[0]), f.scalars[0],
                                      bool(f.has_amp[0]), lay.version, lay.max_tracks, lay.lookahead)
-        logp, consistent = self.net.scores(tracks, pulse[None])  # (k, n + 1), column n = spurious; (k,)
+        logp, consistent = self.net.beam_scores(tracks, pulse)  # (k, n + 1), column n = spurious; (k,)
         t, amp = f.win_toa[0, 1], f.win_amp[0, 1]
         cum = self.score[:k, None] + logp
         rank = cum + self.consistency * consistent[:, None] if self.consistency else cum

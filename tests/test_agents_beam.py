@@ -165,3 +165,16 @@ def test_kernels_compute_what_track_features_compute():
                    mine.span_time, mine.span_periods, mine.amp_mean, mine.prior_period)
             mine.labelled += 1
             mine.win_toa[:, 0], mine.win_toa[:, 1] = mine.win_toa[:, 1], np.nan
+
+
+def test_compiled_beam_scores_equal_the_numpy_network():
+    for attention in (True, False):
+        layout = TrackLayout(max_tracks=8, lookahead=3)
+        net = NumpyTrackNet(weights_of(_random_policy(layout, attention)), heads=4)
+        rng = np.random.default_rng(2)
+        for k, n in ((1, 2), (8, 3), (5, 8)):
+            tracks = rng.normal(size=(k, n, len(layout.token_names))).astype(np.float32)
+            pulse = rng.normal(size=len(layout.pulse_names)).astype(np.float32)
+            want, want_v = net.scores(tracks, pulse[None])
+            got, got_v = net.beam_scores(tracks, pulse)
+            assert np.abs(got - want).max() < 1e-5 and np.abs(got_v - want_v).max() < 1e-5

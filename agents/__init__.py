@@ -5,11 +5,20 @@ load when a policy is first built.
 Checkpoints are single safetensors files (`agents.checkpoint`); loading one never unpickles.
 """
 
-from deint_env.policies import PolicyInfo
+from deint_env.policies import Limits, PolicyInfo
 
 POLICIES = (
     PolicyInfo("agent", "agents.policy:agent", kind="learned", extra="rl", required=("checkpoint",),
                description="a learned agent from a deint checkpoint file (agent:checkpoint=PATH.safetensors)"),
+    PolicyInfo("agent-beam", "agents.policy:BeamPolicy", kind="learned", modes=("anchored",), extra="rl",
+               required=("checkpoint",),
+               description="a track-network checkpoint decoded with a beam of its own log-probabilities "
+                           "(agent-beam:checkpoint=PATH,beam=8,decision_lag=8; lag = look-ahead + decision_lag)"),
+    PolicyInfo("dagger-beam", "agents.policy:dagger_beam", kind="learned", modes=("anchored",), extra="rl",
+               limits=Limits(max_sources=8),
+               description="the zoo's agent for core-v0, robust-v0 and agile-v0 (agents/checkpoints/"
+                           "dagger-all-lag3.safetensors, DAgger on their train seeds, token layout 3), decoded "
+                           "with a beam of 8 of its own log-probabilities; lag 3 + decision_lag 20 = 23"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),

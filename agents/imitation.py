@@ -13,6 +13,11 @@ the expert continues the track holding the pulse's true predecessor, or opens an
 `--algo bc` is plain behaviour cloning: the same loop with beta = 1 throughout (only the expert's
 own states).  `--expert SPEC` imitates a reference policy's labels instead of the truth
 (agents.experts).  Each iteration's loss, beta and sample count go to TensorBoard (agents.tb).
+
+With `consistency_weight` > 0 the value head is trained too (binary cross-entropy), to tell whether
+the state described is still consistent with the truth (each track's last label right and no wrong
+label among the last `consistency_window`): the beam decoder (agents.beam) scores whole hypotheses
+with it.
 """
 
 from __future__ import annotations
@@ -43,6 +48,11 @@ class DaggerParams:
     learning_rate: float = 1e-3
     beta_decay: float = 0.5
     buffer: int = 400_000
+    # Weight of the consistency loss (0: none): the value head learns whether the state is still
+    # consistent with the truth (every track's last label right, no wrong label in the last
+    # `consistency_window` pulses), a learned score of whole hypotheses for beam decoding (agents.beam).
+    consistency_weight: float = 0.0
+    consistency_window: int = 16
     policy_kwargs: dict | None = None
 
     @classmethod
@@ -81,9 +91,31 @@ def expert_actions(env, max_tracks: int) -> np.ndarray:
     return out
 
 
-def _logits(policy: TrackPolicy, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+def _logits(policy: TrackPolicy, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(action logits, consistency logit) of a batch."""
     features = policy.extract_features(obs, policy.pi_features_extractor)
-    return policy.mlp_extractor.forward_actor(features)
+    latent_pi, latent_vf = policy.mlp_extractor(features)
+    return latent_pi, policy.value_net(latent_vf).squeeze(-1)
+
+
+class _Consistency:
+    """Per sub-env: is the learner's labelling so far consistent with the truth (class doc of DaggerParams)."""
+
+    def __init__(self, n_envs: int, max_tracks: int, window: int):
+        self.anchor_ok = np.ones((n_envs, max_tracks + 1), bool)
+        self.recent_ok = np.ones((n_envs, window), bool)
+
+    def target(self, feats) -> np.ndarray:
+        fresh = feats.labelled == 0  # a new episode (nothing labelled yet)
+        self.anchor_ok[fresh] = True
+        self.recent_ok[fresh] = True
+        return self.anchor_ok.all(1) & self.recent_ok.all(1)
+
+    def record(self, feats, ready: np.ndarray, act: np.ndarray, expert: np.ndarray) -> None:
+        rows = np.flatnonzero(ready)
+        right = act[rows] == expert[rows]
+        self.anchor_ok[rows, act[rows]] = right
+        self.recent_ok[rows, feats.labelled[rows] % self.recent_ok.shape[1]] = right
 
 
 def dagger(config: TrainConfig, run, expert) -> TrainResult:
@@ -112,7 +144,8 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
     env.reset(seed=config.seed + iteration)
     rng = np.random.default_rng([config.seed, iteration])
     keys = ("tracks", "mask", "pulse")
-    buf: dict[str, list[np.ndarray]] = {k: [] for k in (*keys, "action")}
+    buf: dict[str, list[np.ndarray]] = {k: [] for k in (*keys, "action", "consistent")}
+    consistency = _Consistency(params.n_envs, layout.max_tracks, params.consistency_window)
     stored = 0
     next_eval = done + config.eval_every
 
@@ -132,6 +165,7 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
         for _ in range(params.rollout_steps):
             ready = env.features.ready
             target = expert.actions(env, layout.max_tracks)
+            consistent = consistency.target(env.features)
             if beta < 1.0:
                 greedy = np.where(env.action_masks(), action_scores(policy, obs).numpy(), -np.inf).argmax(1)
                 act = np.where(rng.random(env.num_envs) < beta, target, greedy)
@@ -141,7 +175,9 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
                 for k in keys:
                     buf[k].append(obs[k][ready])
                 buf["action"].append(target[ready])
+                buf["consistent"].append(consistent[ready])
                 stored += int(ready.sum())
+            consistency.record(env.features, ready, act, target)
             obs, *_ = env.step(act)
             done += env.num_envs
         while stored > params.buffer and len(buf["action"]) > 1:  # drop the oldest rollout steps
@@ -156,8 +192,11 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
             order = torch.as_tensor(rng.permutation(n))
             for b in range(0, n, params.batch_size):
                 idx = order[b:b + params.batch_size]
-                logits = _logits(policy, {k: data[k][idx] for k in keys})
+                logits, value = _logits(policy, {k: data[k][idx] for k in keys})
                 loss = torch.nn.functional.cross_entropy(logits, data["action"][idx])
+                if params.consistency_weight:
+                    loss = loss + params.consistency_weight * torch.nn.functional.binary_cross_entropy_with_logits(
+                        value, data["consistent"][idx].float())
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()

@@ -18,7 +18,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from agents.beam import VERSION as BEAM_VERSION
+from agents.beam import BeamDecoder
 from agents.checkpoint import Checkpoint, load_checkpoint
+from agents.fast_net import NumpyTrackNet
 from agents.networks import PulseLayout, action_scores, build_policy, layout_from_dict, load_weights
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
@@ -29,6 +32,8 @@ from deint_env.wrappers import FeatureTracker
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 PPO_CHECKPOINT = CHECKPOINT_DIR / "ppo-two-source.safetensors"
 DAGGER_CHECKPOINT = CHECKPOINT_DIR / "dagger-core-v0-lag3.safetensors"
+ZOO_CHECKPOINT = CHECKPOINT_DIR / "dagger-all-lag3.safetensors"  # core-v0 + robust-v0 + agile-v0, layout 3
+ZOO_CONSISTENCY = 0.0  # measured on train seeds: the value head did not change the scores (README)
 
 
 @functools.lru_cache(maxsize=8)
@@ -129,9 +134,59 @@ def agent(checkpoint: str, deterministic: bool = True) -> Any:
     return AgentPolicy(checkpoint, deterministic)
 
 
+class BeamPolicy:
+    """A track-network checkpoint decoded with a beam (`agents.beam`): `beam` hypotheses, each
+    pulse's label decided `decision_lag` pulses after the network first scores it; the policy's lag
+    is the network's look-ahead plus `decision_lag`; `consistency` weighs the value head's whole-hypothesis
+    score (agents.beam).  `version` is the checkpoint's content hash and the decoder's version."""
+
+    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8, consistency: float = 0.0):
+        self.checkpoint = str(Path(checkpoint).resolve())
+        ck, _ = load_agent(self.checkpoint)
+        if ck.meta.architecture.get("name") != "track-net":
+            raise DeintError(f"checkpoint {checkpoint} holds a {ck.meta.architecture.get('name')!r} network; the "
+                             "beam decoder reads log-probabilities of a 'track-net' (actor-critic) network")
+        layout = layout_from_dict(ck.meta.features)
+        self.meta = ck.meta
+        self.version = f"{ck.key}/beam-{BEAM_VERSION}"
+        if consistency and not ck.meta.hyperparameters.get("consistency_weight"):
+            raise DeintError(f"consistency={consistency} needs a checkpoint whose value head was trained for it "
+                             f"(DAgger with consistency_weight > 0); {checkpoint} was not")
+        self._decoder = BeamDecoder(numpy_net(self.checkpoint), layout, beam, decision_lag, consistency=consistency)
+        self.lag = layout.lookahead + self._decoder.decision_lag
+
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        self._decoder.start(priors, bool(info.get("has_amplitude", False)))
+        self._n = priors.n_labels
+
+    def act(self, obs: dict[str, Any]) -> int:
+        label = self._decoder.step(float(np.asarray(obs["toa"]).reshape(-1)[0]),
+                                   float(np.asarray(obs["amplitude"]).reshape(-1)[0]), bool(obs["valid"]))
+        return 0 if label is None else label  # label n (spurious) is the env's spurious label n as well
+
+
+@functools.lru_cache(maxsize=8)
+def _numpy_net(path: str, mtime_ns: int, size: int) -> NumpyTrackNet:
+    ck, _ = _load(path, mtime_ns, size)
+    return NumpyTrackNet(ck.tensors, ck.meta.architecture.get("heads", 4))
+
+
+def numpy_net(checkpoint: str | os.PathLike) -> NumpyTrackNet:
+    """The checkpoint's actor as numpy matrices, once per process and file version."""
+    path = Path(checkpoint).resolve()
+    st = path.stat()
+    return _numpy_net(str(path), st.st_mtime_ns, st.st_size)
+
+
 def dagger(deterministic: bool = True) -> AgentPolicy:
     """The zoo's DAgger agent for core-v0 (`deint train --suite core-v0 --algo dagger`)."""
     return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)
+
+
+def dagger_beam(beam: int = 8, decision_lag: int = 20, consistency: float = ZOO_CONSISTENCY) -> BeamPolicy:
+    """The zoo's agent for core-v0, robust-v0 and agile-v0 together: DAgger on their train seeds
+    (agents/hyperparams/dagger-all.yml), decoded with a beam."""
+    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag, consistency)
 
 
 def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:

@@ -1,4 +1,4 @@
-"""Per-track token features for learned agents, for any number of sources (layout version 2).
+"""Per-track token features for learned agents, for any number of sources (layout version 3; 2 is still computed).
 
 One observation describes the pulse the next action labels, as one *token* per label track (padded
 to a declared maximum `max_tracks` = M, with a mask) plus a few *pulse* (global) features.  The
@@ -24,6 +24,11 @@ phase), t the pulse to label and u the episode's time unit (mean received interv
 - gap = (t - previous received pulse) / P; log_period = log(P / u); since_unit = (t - anchor) / u.
 - amp = (amplitude - the track's mean amplitude) / its prior spread (blind: / the pulse amplitude's).
 - period_drift = P / prior period - 1 (anchored only).
+- Version 3 adds z = resid * P / sigma, the residual in jitter units (sigma = the stated jitter std,
+  floored at 0.1 % of P), and per look-ahead pulse ahead_z_j, ahead_self_z_j (ahead_resid_j and
+  ahead_self_j likewise scaled): the residuals of version 2 are fractions of a period, so a jitter of a
+  few hundredths of a period (the core-v0 spreads) is below what the network resolves, and two close
+  pulses of different tracks get swapped.
 - ahead_resid_j = the residual (as resid) of look-ahead pulse j against the track's anchor, and
   ahead_self_j its residual against t itself: "would t's successor in this track be where pulse j is".
 
@@ -46,7 +51,8 @@ from deint_env.episode import Priors
 from deint_env.errors import DeintError
 
 LAYOUT = "tracks"
-VERSION = 2
+VERSION = 3
+VERSIONS = (2, 3)  # layouts this module computes (2: checkpoints trained before the z-scores)
 CLIP = 10.0
 MAX_TRACKS = 256
 MAX_LOOKAHEAD = 16
@@ -73,14 +79,18 @@ class TrackLayout:
                                     ("lookahead", self.lookahead, 0, MAX_LOOKAHEAD)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
                 raise DeintError(f"{name}={value!r} is invalid: an integer in [{lo}, {hi}]")
-        if self.version != VERSION:
+        if self.version not in VERSIONS:
             raise DeintError(f"track feature layout version {self.version!r} is not computed by this deint_env "
-                             f"(it computes version {VERSION}): retrain the agent")
+                             f"(it computes versions {', '.join(map(str, VERSIONS))}): retrain the agent")
 
     @property
     def token_names(self) -> list[str]:
-        ahead = [f"{f}_{j}" for j in range(1, self.lookahead + 1) for f in ("ahead_resid", "ahead_self")]
-        return list(TOKEN_FEATURES) + ahead
+        if self.version == 2:
+            ahead = [f"{f}_{j}" for j in range(1, self.lookahead + 1) for f in ("ahead_resid", "ahead_self")]
+            return list(TOKEN_FEATURES) + ahead
+        ahead = [f"{f}_{j}" for j in range(1, self.lookahead + 1)
+                 for f in ("ahead_resid", "ahead_self", "ahead_z", "ahead_self_z")]
+        return list(TOKEN_FEATURES) + ["z"] + ahead
 
     @property
     def pulse_names(self) -> list[str]:
@@ -269,11 +279,17 @@ class TrackFeatures:
                    since, since - n, n - 1, (t - prev)[:, None] / p, np.log(p / u), (tt - self.anchor) / u,
                    (self.win_amp[:, 1:2] - self.amp_mean) / np.where(self.blind[:, None], np.abs(
                        self.win_amp[:, 1:2]) + 1e-12, self.amp_scale), p / self.prior_period - 1.0]
+            v3 = lay.version >= 3
+            if v3:
+                p_sigma = p / np.maximum(self.scalars[:, 2:3], 1e-3 * p)  # period / jitter std
+                tok.append((since - n) * p_sigma)
             pulse = [ready, ready & ~np.isfinite(prev), self.blind, self.n_labels / lay.max_tracks,
                      self.scalars[:, 0], self.scalars[:, 1], self.scalars[:, 2] / unit, self.has_amp]
             for j in range(1, lay.lookahead + 1):
                 tj = self.win_toa[:, 1 + j]
-                tok += [_resid((tj[:, None] - self.anchor) / p), _resid((tj - t)[:, None] / p)]
+                ahead = _resid((tj[:, None] - self.anchor) / p)
+                ahead_self = _resid((tj - t)[:, None] / p)
+                tok += [ahead, ahead_self] + ([ahead * p_sigma, ahead_self * p_sigma] if v3 else [])
                 pulse += [np.isfinite(tj), (tj - t) / unit]
             tracks = np.stack(np.broadcast_arrays(*tok), axis=-1).astype(np.float64)
             tracks[~self.has_amp, :, TOKEN_FEATURES.index("amp")] = 0.0

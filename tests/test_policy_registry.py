@@ -108,7 +108,7 @@ def test_metadata_is_checked():
 def test_default_set_leaves_out_policies_needing_a_parameter_and_pulse_limited_ones():
     names = default_policies()
     assert "tdc" not in names and "tree" not in names and {"genie", "ppo", "fdp", "random"} <= set(names)
-    assert names == [p.name for p in list_policies() if p.name not in ("agent", "tdc", "tree")]
+    assert names == [p.name for p in list_policies() if p.name not in ("agent", "agent-beam", "tdc", "tree")]
 
 
 def test_modes_are_checked_once_from_the_registry():

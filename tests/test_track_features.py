@@ -67,16 +67,18 @@ def _labels_truly(env, seed):
 def test_on_schedule_pulses_have_zero_residual_and_lookahead_finds_the_next_one():
     env = TrackTokens(DeinterleaveEnv(PERIODIC, lag=3, clustering_metrics=False), max_tracks=5)
     steps, ep = _labels_truly(env, 0)
-    resid, first = NAMES.index("resid"), NAMES.index("ahead_self_1")
+    resid, z = NAMES.index("resid"), NAMES.index("z")
     hits = 0
     for obs, s, j in steps:
         tracks = obs["tracks"]
-        assert abs(tracks[s, resid]) < 1e-6
+        assert abs(tracks[s, resid]) < 1e-6 and abs(tracks[s, z]) < 1e-3
         assert np.all(tracks[3:] == 0) and obs["mask"].tolist() == [1, 1, 1, 0, 0]
         nxt = np.flatnonzero(ep.source[j + 1:j + 4] == s)  # the source's next pulse within the look-ahead
         if nxt.size:
             hits += 1
-            assert abs(tracks[s, first + 2 * int(nxt[0])]) < 1e-6
+            ahead = int(nxt[0]) + 1
+            assert abs(tracks[s, NAMES.index(f"ahead_self_{ahead}")]) < 1e-6
+            assert abs(tracks[s, NAMES.index(f"ahead_self_z_{ahead}")]) < 1e-3
     assert hits > 20
 
 

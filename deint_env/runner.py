@@ -291,7 +291,12 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
                 _run_pool(todo, workers, keep)
         except KeyboardInterrupt:
             bar.close()
-            saved = f"; {len(records)} of {len(jobs)} episodes are saved in {out}, rerun to resume" if out else ""
+            saved = ""
+            if sink is not None:  # count what reached the file: the interrupt may land between a write and its tally
+                sink.close()
+                sink = None
+                kept = sum(1 for r in read_records(out) if r.key in wanted and r.fault is None)
+                saved = f"; {kept} of {len(jobs)} episodes are saved in {out}, rerun to resume"
             raise KeyboardInterrupt(f"interrupted{saved}") from None
         finally:
             bar.close()

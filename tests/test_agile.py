@@ -236,7 +236,7 @@ def test_renewal_ml_on_agile_v1_first_test_seeds():
     seed of every agile-v1 scenario (about a minute)."""
     from deint_env.runner import make_jobs, run_job
 
-    scores = {job.scenario["name"]: run_job(job)["score"] for job in make_jobs(["renewal-ml"], "agile-v1", max_seeds=1)}
+    scores = {job.scenario["name"]: run_job(job).metrics["score"] for job in make_jobs(["renewal-ml"], "agile-v1", max_seeds=1)}
     assert len(scores) == 9 and min(scores.values()) >= 0.9, scores
 
 

@@ -6,7 +6,9 @@ permutation-equivariant over tracks and plays any number of them up to the layou
 spurious score and a value from a masked pooling over the tracks, and optionally one self-attention
 layer across the tracks (a track's score can then depend on the others: "this pulse fits track 2
 only because track 5's prediction is far").  Absent tracks get a logit of -1e8, so even plain PPO or
-DQN never picks them; MaskablePPO's masks agree.
+DQN never picks them; MaskablePPO's masks agree.  `RecurrentTrackPolicy` (sb3-contrib's RecurrentPPO)
+adds an LSTM memory over the episode: it reads each step's pooled summary, and every track is scored
+from its embedding and the memory; `recurrent_scores` steps it, carrying the LSTM state.
 
 `build_policy(meta)` rebuilds the SB3 policy module a checkpoint describes (architecture name and
 keyword arguments from an allow-list, spaces from the feature layout), and `load_weights` fills it
@@ -22,6 +24,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 from sb3_contrib.common.maskable.policies import MaskableActorCriticPolicy
+from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
 from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.dqn.policies import DQNPolicy
@@ -82,7 +85,8 @@ class TrackExtractor(BaseFeaturesExtractor):
         self.pool = nn.Sequential(nn.Linear(2 * d_model + g, d_model), nn.ReLU())
         self.spurious = nn.Linear(d_model, 1)
 
-    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+    def encode(self, obs: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(track embeddings (B, M, d), track mask (B, M) bool, pooled summary (B, d))."""
         tokens, pulse = obs["tracks"], obs["pulse"]
         mask = obs["mask"] > 0.5
         h = self.embed(torch.cat([tokens, pulse[:, None, :].expand(-1, tokens.shape[1], -1)], dim=-1))
@@ -92,11 +96,14 @@ class TrackExtractor(BaseFeaturesExtractor):
             ignore = ~(mask | ~any_track)
             a, _ = self.attention(h, h, h, key_padding_mask=ignore, need_weights=False)
             h = self.norm(h + a)
-        scores = self.score(h).squeeze(-1).masked_fill(~mask, MASKED)
         w = mask.unsqueeze(-1).to(h.dtype)
         mean = (h * w).sum(1) / w.sum(1).clamp(min=1.0)
         top = torch.where(any_track, (h + (w - 1.0) * 1e4).amax(1), torch.zeros_like(mean))
-        pooled = self.pool(torch.cat([mean, top, pulse], dim=-1))
+        return h, mask, self.pool(torch.cat([mean, top, pulse], dim=-1))
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        h, mask, pooled = self.encode(obs)
+        scores = self.score(h).squeeze(-1).masked_fill(~mask, MASKED)
         return torch.cat([scores, self.spurious(pooled), pooled], dim=-1)
 
 
@@ -169,9 +176,106 @@ class TrackDQNPolicy(DQNPolicy):
         return q
 
 
+# ---- the recurrent track network (sb3-contrib RecurrentPPO) -------------------------------------------
+class RecurrentTrackExtractor(TrackExtractor):
+    """The track encoder without its heads: [track embeddings (M*d), track mask (M), pooled summary (d)].
+    The heads come after the LSTM (`RecurrentTrackHeads`), so every track is scored against the memory."""
+
+    def __init__(self, observation_space: spaces.Dict, d_model: int = 64, attention: bool = True, heads: int = 4):
+        super().__init__(observation_space, d_model, attention, heads)
+        del self.score, self.spurious  # they read the memory too: RecurrentTrackHeads
+        self._features_dim = self.max_tracks * (d_model + 1) + d_model
+
+    def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        h, mask, pooled = self.encode(obs)
+        return torch.cat([h.flatten(1), mask.to(h.dtype), pooled], dim=-1)
+
+
+class TrackMemory(nn.Module):
+    """The LSTM of the recurrent track policy, called as sb3-contrib calls an `nn.LSTM` (input
+    (seq, batch, input_size), states (h, c)): it reads the pooled summary of each step and passes the
+    track embeddings through, so its output is [embeddings, mask, pooled, memory]."""
+
+    def __init__(self, input_size: int, d_model: int, hidden_size: int, num_layers: int):
+        super().__init__()
+        self.input_size, self.d_model = input_size, d_model
+        self.lstm = nn.LSTM(d_model, hidden_size, num_layers=num_layers)
+
+    @property
+    def hidden_size(self) -> int:
+        return self.lstm.hidden_size
+
+    @property
+    def num_layers(self) -> int:
+        return self.lstm.num_layers
+
+    def forward(self, x: torch.Tensor, states: tuple[torch.Tensor, torch.Tensor]):
+        memory, states = self.lstm(x[..., -self.d_model:], states)
+        return torch.cat([x, memory], dim=-1), states
+
+
+class RecurrentTrackHeads(nn.Module):
+    """The mlp_extractor of `RecurrentTrackPolicy`: each track's logit from its embedding and the
+    memory (one shared scorer, so still permutation-equivariant), spurious and value from [pooled, memory]."""
+
+    def __init__(self, max_tracks: int, d_model: int, hidden_size: int):
+        super().__init__()
+        self.m, self.d = max_tracks, d_model
+        self.latent_dim_pi, self.latent_dim_vf = max_tracks + 1, d_model + hidden_size
+        self.score = nn.Sequential(nn.Linear(d_model + hidden_size, d_model), nn.ReLU(), nn.Linear(d_model, 1))
+        self.spurious = nn.Linear(d_model + hidden_size, 1)
+
+    def forward(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.forward_actor(latent), self.forward_critic(latent)
+
+    def forward_actor(self, latent: torch.Tensor) -> torch.Tensor:
+        m, d = self.m, self.d
+        h = latent[:, :m * d].reshape(-1, m, d)
+        mask = latent[:, m * d:m * (d + 1)] > 0.5
+        summary = latent[:, m * (d + 1):]  # [pooled, memory]
+        memory = summary[:, None, d:].expand(-1, m, -1)
+        scores = self.score(torch.cat([h, memory], dim=-1)).squeeze(-1).masked_fill(~mask, MASKED)
+        return torch.cat([scores, self.spurious(summary)], dim=-1)
+
+    def forward_critic(self, latent: torch.Tensor) -> torch.Tensor:
+        return latent[:, self.m * (self.d + 1):]
+
+
+class RecurrentTrackPolicy(RecurrentActorCriticPolicy):
+    """The track network with an LSTM memory over the episode's steps, for sb3-contrib's RecurrentPPO:
+    encoder (RecurrentTrackExtractor) -> TrackMemory -> RecurrentTrackHeads.  The critic has its own
+    TrackMemory (sb3-contrib's default, `enable_critic_lstm`)."""
+
+    def __init__(self, observation_space, action_space, lr_schedule, d_model: int = 64, attention: bool = True,
+                 heads: int = 4, lstm_hidden_size: int = 64, n_lstm_layers: int = 1, **kwargs):
+        kwargs["features_extractor_class"] = RecurrentTrackExtractor
+        kwargs["features_extractor_kwargs"] = dict(d_model=d_model, attention=attention, heads=heads)
+        kwargs.setdefault("ortho_init", False)
+        self.d_model = d_model  # _build_mlp_extractor (called by the base __init__) needs it
+        super().__init__(observation_space, action_space, lr_schedule, lstm_hidden_size=lstm_hidden_size,
+                         n_lstm_layers=n_lstm_layers, shared_lstm=False, enable_critic_lstm=True, **kwargs)
+        # The base made plain LSTMs over all features; ours read the pooled summary only.
+        self.lstm_actor = TrackMemory(self.features_dim, d_model, lstm_hidden_size, n_lstm_layers)
+        self.lstm_critic = TrackMemory(self.features_dim, d_model, lstm_hidden_size, n_lstm_layers)
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    def _build_mlp_extractor(self) -> None:
+        self.mlp_extractor = RecurrentTrackHeads(self.observation_space["tracks"].shape[0], self.d_model,
+                                                 self.lstm_output_dim)
+
+    def _build(self, lr_schedule) -> None:
+        super()._build(lr_schedule)
+        self.action_net = nn.Identity()  # the logits come straight from the per-track scorer
+
+    def initial_state(self, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The actor's zero (h, c) for `n` episodes."""
+        shape = (self.lstm_actor.num_layers, n, self.lstm_actor.hidden_size)
+        return torch.zeros(shape), torch.zeros(shape)
+
+
 # ---- rebuilding from JSON ----------------------------------------------------------------------------
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
-ARCHITECTURES = ("sb3-mlp", "track-net", "track-dqn")
+ARCHITECTURES = ("sb3-mlp", "track-net", "track-dqn", "recurrent-track-net")
 
 
 def _constant(_: float) -> float:
@@ -201,6 +305,10 @@ def build_policy(architecture: dict[str, Any], features: dict[str, Any]) -> Base
                 raise DeintError(f"architecture {name!r} needs the token (non-flat) feature layout")
             cls = TrackPolicy if name == "track-net" else TrackDQNPolicy
             return cls(obs_space, act_space, _constant, **arch)
+        if name == "recurrent-track-net":
+            if not isinstance(obs_space, spaces.Dict):
+                raise DeintError(f"architecture {name!r} needs the token (non-flat) feature layout")
+            return RecurrentTrackPolicy(obs_space, act_space, _constant, **arch)
     except (TypeError, KeyError, ValueError) as e:
         if isinstance(e, DeintError):
             raise
@@ -210,6 +318,11 @@ def build_policy(architecture: dict[str, Any], features: dict[str, Any]) -> Base
 
 def architecture_of(policy: BasePolicy) -> dict[str, Any]:
     """The JSON that `build_policy` turns back into `policy`'s module."""
+    if isinstance(policy, RecurrentTrackPolicy):
+        fx = policy.features_extractor
+        return {"name": "recurrent-track-net", "d_model": policy.d_model, "attention": fx.attention is not None,
+                "heads": fx.attention.num_heads if fx.attention is not None else 4,
+                "lstm_hidden_size": policy.lstm_actor.hidden_size, "n_lstm_layers": policy.lstm_actor.num_layers}
     if isinstance(policy, (_TrackActorCritic, TrackDQNPolicy)):
         fx = policy.q_net.features_extractor if isinstance(policy, TrackDQNPolicy) else policy.features_extractor
         name = "track-dqn" if isinstance(policy, TrackDQNPolicy) else "track-net"
@@ -259,3 +372,15 @@ def action_scores(policy: BasePolicy, obs: dict[str, np.ndarray] | np.ndarray) -
             return policy.q_net.q_net(policy.q_net.features_extractor(x))
         features = policy.pi_features_extractor(x)
         return policy.action_net(policy.mlp_extractor.forward_actor(features))
+
+
+def recurrent_scores(policy: RecurrentTrackPolicy, obs: dict[str, np.ndarray], states: tuple[torch.Tensor, torch.Tensor],
+                     starts: np.ndarray) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """Logits of one step of `len(starts)` episodes and the actor's next LSTM states; rows with
+    `starts` set begin an episode (their states are zeroed first, as in RecurrentPPO's rollouts)."""
+    with torch.inference_mode():
+        x = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in obs.items()}
+        features = policy.pi_features_extractor(x)
+        latent, states = policy._process_sequence(features, states, torch.as_tensor(starts, dtype=torch.float32),
+                                                  policy.lstm_actor)
+        return policy.action_net(policy.mlp_extractor.forward_actor(latent)), states

@@ -3,7 +3,9 @@
 The checkpoint's JSON names the architecture and the feature layout; the policy rebuilds the
 network (`agents.networks.build_policy`), fills it from the safetensors weights, and acts on the
 same features the agent trained on (the token layout 2 of `deint_env.features`, or the flat pulse
-layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  `version` is the checkpoint's
+layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  A recurrent network
+(RecurrentPPO's) carries its LSTM state from step to step, stepping on every env step as in training
+(look-ahead and padding steps too, which label nothing), and starts each episode from zeros.  `version` is the checkpoint's
 content hash: records of a retrained checkpoint written to the same path never pass for the old one.
 `ppo` is this policy on the checked-in two-source checkpoint.
 """
@@ -22,7 +24,8 @@ from agents.beam import VERSION as BEAM_VERSION
 from agents.beam import BeamDecoder
 from agents.checkpoint import Checkpoint, load_checkpoint
 from agents.fast_net import NumpyTrackNet
-from agents.networks import PulseLayout, action_scores, build_policy, layout_from_dict, load_weights
+from agents.networks import (PulseLayout, RecurrentTrackPolicy, action_scores, build_policy, layout_from_dict,
+                             load_weights, recurrent_scores)
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.features import TrackFeatures
@@ -74,6 +77,8 @@ class AgentPolicy:
         self.lag = self.layout.lookahead
         self._name = Path(self.checkpoint).name
         self._rng: np.random.Generator | None = None
+        self._recurrent = isinstance(self._net, RecurrentTrackPolicy)
+        self._state: tuple[torch.Tensor, torch.Tensor] | None = None
         if isinstance(self.layout, PulseLayout):
             self._tracker: FeatureTracker | None = FeatureTracker(self.layout.n_labels, lag=0)
             self._tokens: TrackFeatures | None = None
@@ -95,10 +100,12 @@ class AgentPolicy:
                                     f"scenario has {priors.n_labels}")
             self._tokens.reset_rows([0], [priors], [bool(info.get("has_amplitude", False))])
             self._spurious = priors.n_labels
+            if self._recurrent:
+                self._state = self._net.initial_state(1)
         self._rng = None if self.deterministic else policy_rng(info, None)
 
-    def _choose(self, obs: Any, mask: np.ndarray | None) -> int:
-        scores = action_scores(self._net, obs)[0].numpy().astype(np.float64)
+    def _choose(self, scores: np.ndarray, mask: np.ndarray | None) -> int:
+        scores = scores.astype(np.float64)
         if mask is not None:
             scores = np.where(mask, scores, -np.inf)
         if self._rng is None:
@@ -112,14 +119,18 @@ class AgentPolicy:
             tracker.observe(obs)
             if not tracker.ready:
                 return 0
-            label = self._choose(tracker.features()[None, :], None)
+            label = self._choose(action_scores(self._net, tracker.features()[None, :])[0].numpy(), None)
             tracker.label(label)
             return label
         tok = self._tokens
         tok.observe(obs["toa"], obs["amplitude"], obs["valid"])
+        if self._recurrent:  # the memory steps on every env step, as it did in training
+            logits, self._state = recurrent_scores(self._net, tok.observation(), self._state, np.zeros(1))
         if not tok.ready[0]:
             return 0  # labels nothing (a look-ahead step or a padding step)
-        action = self._choose(tok.observation(), tok.action_masks()[0])
+        if not self._recurrent:
+            logits = action_scores(self._net, tok.observation())
+        action = self._choose(logits[0].numpy(), tok.action_masks()[0])
         tok.label(np.array([action]))
         return int(tok.env_actions(np.array([action]), self._spurious)[0])
 

@@ -2,6 +2,7 @@
 
     deint train --suite core-v0 --algo maskable-ppo --n-envs 16 --time-budget 1800 --out runs/train/core
     deint train --scenario core-v0/core-n6-spread4-jitter0.05 --algo ppo --timesteps 200000
+    deint train --scenario core-v0/core-n6-spread4-jitter0.05 --algo recurrent-ppo --timesteps 200000
     deint train --suite core-v0 --algo dagger --time-budget 900       # imitation of the truth (agents.imitation)
     deint train --suite core-v0 --algo bc --expert mht --timesteps 200000   # behaviour cloning of mht's labels
 
@@ -34,15 +35,15 @@ from stable_baselines3.common.vec_env import VecMonitor
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
 from agents.config import TrainConfig, TrainResult
 from agents.experts import TRUTH
-from agents.networks import (MaskableTrackPolicy, TrackDQNPolicy, TrackPolicy, action_scores, architecture_of,
-                             load_weights, weights_of)
+from agents.networks import (MaskableTrackPolicy, RecurrentTrackPolicy, TrackDQNPolicy, TrackPolicy, action_scores,
+                             architecture_of, load_weights, recurrent_scores, weights_of)
 from agents.tb import next_run_dir, tensorboard_available, writer
 from agents.vec_env import TokenVecEnv
 from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "a2c", "dqn", "dagger", "bc", "seq")
+ALGOS = ("ppo", "maskable-ppo", "recurrent-ppo", "a2c", "dqn", "dagger", "bc", "seq")
 IMITATION = ("dagger", "bc")  # agents.imitation; their YAML is dagger.yml
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
@@ -63,6 +64,9 @@ def _algo_class(algo: str):
     if algo == "maskable-ppo":
         from sb3_contrib import MaskablePPO
         return MaskablePPO, MaskableTrackPolicy
+    if algo == "recurrent-ppo":
+        from sb3_contrib import RecurrentPPO
+        return RecurrentPPO, RecurrentTrackPolicy
     raise DeintError(f"--algo {algo!r} is unknown; known: {', '.join(ALGOS)}")
 
 
@@ -106,18 +110,26 @@ def _versions() -> dict[str, str]:
 
 
 def evaluate_greedy(policy, env_kwargs: dict[str, Any], episodes: int, seed: int = 0) -> float:
-    """Mean episode accuracy of `policy` (greedy, masked) over `episodes` validation episodes."""
+    """Mean episode accuracy of `policy` (greedy, masked) over `episodes` validation episodes (a
+    recurrent policy carries its LSTM state, reset when an episode ends)."""
     n = min(episodes, 16)
     env = TokenVecEnv.make(n, **{**env_kwargs, "split": "validation"})
     env.seed(seed)
     obs = env.reset()
     scores: list[float] = []
+    recurrent = isinstance(policy, RecurrentTrackPolicy)
+    state, starts = (policy.initial_state(n) if recurrent else None), np.ones(n, bool)
     while len(scores) < episodes:
-        q = action_scores(policy, obs).numpy()
+        if recurrent:
+            logits, state = recurrent_scores(policy, obs, state, starts)
+            q = logits.numpy()
+        else:
+            q = action_scores(policy, obs).numpy()
         actions = np.where(env.action_masks(), q, -np.inf).argmax(axis=1)
         env.step_async(actions)
         obs, _, dones, infos = env.step_wait()
         scores += [infos[i]["episode_accuracy"] for i in np.flatnonzero(dones).tolist()]
+        starts = dones
     env.close()
     return float(np.mean(scores[:episodes]))
 

@@ -11,7 +11,7 @@ import pytest
 
 pytest.importorskip("sb3_contrib")  # the [rl] extra
 
-from agents.checkpoint import read_meta  # noqa: E402
+from agents.checkpoint import read_meta, save_checkpoint  # noqa: E402
 from agents.policy import AgentPolicy  # noqa: E402
 from agents.train import PACKAGE_DIRS, TrainConfig, load_hyperparams, train  # noqa: E402
 from deint_env.errors import DeintError  # noqa: E402
@@ -48,6 +48,76 @@ def test_tiny_training_writes_checkpoints_and_resumes(tmp_path, algo):
     assert lines[-1]["timesteps"] == again.timesteps and len(lines) > len(first.evaluations)
 
 
+def sb3_labels(model, scenario, seed: int, n: int, lag: int, state=None) -> list[np.ndarray]:
+    """The env labels SB3's own `predict` gives the pulses of episodes seed..seed+n-1 (one env each),
+    carrying the LSTM state as RecurrentPPO's rollouts do, from zeros or from `state`."""
+    from agents.vec_env import TokenVecEnv
+
+    venv = TokenVecEnv.make(n, scenario=scenario, lag=lag, max_tracks=8)
+    venv.seed(seed)
+    obs, starts = venv.reset(), np.full(n, state is None)
+    labels: list[list[int]] = [[] for _ in range(n)]
+    finished = np.zeros(n, bool)
+    while not finished.all():
+        actions, state = model.predict(obs, state=state, episode_start=starts, deterministic=True)
+        tokens = venv.env.features
+        ready, env_labels = tokens.ready.copy(), tokens.env_actions(actions, venv.env._spurious)
+        for i in np.flatnonzero(ready & ~finished).tolist():
+            labels[i].append(int(env_labels[i]))
+        venv.step_async(actions)
+        obs, _, starts, _ = venv.step_wait()
+        finished |= starts
+    return [np.array(x) for x in labels]
+
+
+def test_recurrent_ppo_round_trip_carries_the_lstm_state(tmp_path):
+    """train -> safetensors -> `agent:checkpoint=` plays each episode with the labels SB3's own
+    RecurrentPPO.predict gives it (LSTM state carried per step, reset per episode)."""
+    import torch
+    from sb3_contrib import RecurrentPPO
+
+    from agents.checkpoint import load_checkpoint
+    from agents.networks import RecurrentTrackPolicy, load_weights
+    from agents.vec_env import TokenVecEnv
+    from deint_env.policies import make_policy
+
+    hp = tmp_path / "hp.yml"
+    hp.write_text("default:\n  n_steps: 64\n  batch_size: 64\n  n_epochs: 1\n"
+                  "  policy_kwargs: {d_model: 8, heads: 2, lstm_hidden_size: 8}\n")
+    out = tmp_path / "run"
+    first = train(tiny(out, algo="recurrent-ppo", hyperparams_file=hp, lag=3))
+    ck = load_checkpoint(first.last)
+    assert ck.meta.algorithm == "recurrent-ppo" and ck.meta.timesteps == first.timesteps >= 512
+    assert ck.meta.architecture == {"name": "recurrent-track-net", "d_model": 8, "attention": True, "heads": 2,
+                                    "lstm_hidden_size": 8, "n_lstm_layers": 1}
+    assert len(first.evaluations) >= 2 and first.best is not None
+    again = train(tiny(out, algo="recurrent-ppo", hyperparams_file=hp, lag=3, timesteps=1024))  # resumes
+    assert read_meta(again.last).timesteps >= 1024 > first.timesteps
+
+    # Make the memory long (forget gates near 1: PyTorch's gate order is i, f, g, o) and weigh in each
+    # track's score, so a state not carried, not reset or not stepped on look-ahead steps changes labels.
+    ck = load_checkpoint(again.last)
+    ck.tensors["lstm_actor.lstm.bias_ih_l0"][8:16] += 2.0
+    ck.tensors["mlp_extractor.score.0.weight"][:, 8:] *= 3.0
+    boosted = tmp_path / "boosted.safetensors"
+    save_checkpoint(boosted, ck.tensors, ck.meta)
+    model = RecurrentPPO(RecurrentTrackPolicy, TokenVecEnv.make(1, scenario=SCENARIO, lag=3), device="cpu",
+                         policy_kwargs=dict(d_model=8, heads=2, lstm_hidden_size=8))
+    load_weights(model.policy, ck.tensors, "test")
+    seed, spec = find_entry(SCENARIO).test.start, find_entry(SCENARIO).spec.replace(n_pulses=120)
+    expected = sb3_labels(model, spec, seed, 2, lag=3)
+    state = tuple(np.random.default_rng(0).normal(0, 3, (2, 1, 2, 8)))  # (h, c), 1 layer, 2 envs
+    assert any((a != b).any() for a, b in zip(sb3_labels(model, spec, seed, 2, lag=3, state=state), expected))
+    policy = make_policy(f"agent:checkpoint={boosted}")  # one policy object for both episodes
+    assert policy.lag == 3
+    for i in range(2):
+        episode = simulate(spec, seed + i)
+        policy._state = tuple(torch.as_tensor(x[:, :1], dtype=torch.float32) for x in state)  # reset drops it
+        labels = play(policy, episode, clustering=False).labels
+        assert len(np.unique(expected[i])) > 1  # the network does label, not a constant
+        np.testing.assert_array_equal(labels, expected[i])
+
+
 @pytest.mark.slow
 def test_resume_refuses_another_algorithm(tmp_path):
     hp = tmp_path / "hp.yml"
@@ -71,7 +141,7 @@ def test_hyperparameters_are_looked_up_by_scenario_then_suite_then_default(tmp_p
     f.write_text("default: [1, 2]\n")
     with pytest.raises(DeintError, match="must be a mapping"):
         load_hyperparams("ppo", [], f)
-    for algo in ("ppo", "maskable-ppo", "a2c", "dqn"):  # the shipped files parse
+    for algo in ("ppo", "maskable-ppo", "recurrent-ppo", "a2c", "dqn"):  # the shipped files parse
         assert load_hyperparams(algo, ["core-v0"])[1]["policy_kwargs"]["d_model"] > 0
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple, Sequence
 
@@ -458,10 +458,67 @@ def validate(net: PointerNet, layout: SeqLayout, episodes: Sequence[Episode]) ->
     return float(np.mean(acc))
 
 
-def train_seq(config: TrainConfig, out: Path, hyperparams: tuple[str, dict[str, Any]]) -> TrainResult:
+PHASE_KEYS = ("n_timesteps", "seed", "eval_every")  # a phase's run keys; the rest are SeqParams
+
+
+def train_seq_phases(config: TrainConfig, out: Path, hyperparams: tuple[str, dict[str, Any]]) -> TrainResult:
+    """`deint train --algo seq`: one `train_seq` run, or, when the YAML entry has `phases`, one run per
+    phase into the same `out`, each resuming from the last one's `last.safetensors`.  A phase is a
+    mapping: `n_timesteps` (where it ends, counted from the start of the recipe), `seed` (added to
+    --seed), `eval_every` (replaces --eval-every) and SeqParams keys overriding the entry's.  Each
+    phase is the very call a `deint train` command with those values makes (same function, same
+    arguments, resuming from the same file), so the recipe gives what its phases run by hand give;
+    phases already done in `out` are skipped, so a rerun resumes."""
+    from agents.checkpoint import load_checkpoint
+
+    key, entry = hyperparams
+    entry = dict(entry)
+    phases = entry.pop("phases", None)
+    if phases is None:
+        return train_seq(config, out, (key, entry))
+    where = f"hyper-parameters {key!r}"
+    if not isinstance(phases, list) or not phases or not all(isinstance(ph, dict) for ph in phases):
+        raise DeintError(f"{where}: phases must be a non-empty list of mappings")
+    if config.timesteps is not None:
+        raise DeintError(f"{where} declares {len(phases)} training phases, which end where their n_timesteps say; "
+                         "--timesteps does not apply")
+    ends = []
+    for i, ph in enumerate(phases, 1):
+        if "n_timesteps" not in ph:
+            raise DeintError(f"{where}: phase {i} has no n_timesteps")
+        ends.append(int(float(ph["n_timesteps"])))
+        SeqParams.from_yaml({**entry, **{k: v for k, v in ph.items() if k not in PHASE_KEYS}}, f"{where}, phase {i}")
+    if any(b <= a for a, b in zip([0, *ends], ends)):
+        raise DeintError(f"{where}: the phases' n_timesteps must increase; they are {ends}")
+    last = out / "last.safetensors"
+    t0, evaluations, result = time.perf_counter(), [], None
+    for i, (ph, end) in enumerate(zip(phases, ends), 1):
+        if last.is_file() and load_checkpoint(last).meta.timesteps >= end:
+            continue  # done by an earlier run of the recipe
+        budget = None if config.time_budget is None else config.time_budget - (time.perf_counter() - t0)
+        if budget is not None and budget <= 0:
+            break
+        cfg = replace(config, timesteps=end, seed=config.seed + int(ph.get("seed", 0)),
+                      eval_every=int(float(ph.get("eval_every", config.eval_every))), time_budget=budget)
+        params = {**entry, **{k: v for k, v in ph.items() if k not in PHASE_KEYS}, "n_timesteps": end}
+        if config.progress:
+            print(f"deint: seq phase {i}/{len(phases)} to {end} pulses", flush=True)
+        result = train_seq(cfg, out, (key, params), notes={"phase": f"{i}/{len(phases)}"})
+        evaluations += result.evaluations
+        if result.timesteps < end:
+            break  # the time budget ran out: a rerun resumes this phase
+    if result is None:  # every phase was already done
+        done = load_checkpoint(last).meta.timesteps if last.is_file() else 0
+        best = out / "best.safetensors"
+        return TrainResult(last, best if best.is_file() else None, done, 0.0, [])
+    return TrainResult(result.last, result.best, result.timesteps, time.perf_counter() - t0, evaluations)
+
+
+def train_seq(config: TrainConfig, out: Path, hyperparams: tuple[str, dict[str, Any]],
+              notes: dict[str, Any] | None = None) -> TrainResult:
     """Train the pointer labeller on the train seeds of `config`'s scenarios (blind ones) into `out`,
     with `hyperparams` (the YAML key used, its entry), saving `last` / `best` safetensors checkpoints
-    after every validation; resumable from `last`.  Called by `agents.train.train`."""
+    (`notes` added to their metadata notes) after every validation; resumable from `last`."""
     from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
     from deint_env import __version__
     from deint_env.envs.mixed import select_entries, split_seeds
@@ -515,7 +572,7 @@ def train_seq(config: TrainConfig, out: Path, hyperparams: tuple[str, dict[str, 
             seed=config.seed,
             notes={"train_seconds": round(seconds_before + time.perf_counter() - t0, 1),
                    "best_validation_accuracy": None if best == -math.inf else best,
-                   "validation": "link accuracy on the first validation seeds of each scenario"})
+                   "validation": "link accuracy on the first validation seeds of each scenario", **(notes or {})})
 
     def checkpoint() -> None:
         nonlocal best

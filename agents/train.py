@@ -231,10 +231,10 @@ def train(config: TrainConfig) -> TrainResult:
     if config.expert != TRUTH and config.algo not in IMITATION:
         raise DeintError(f"--expert applies to {' and '.join(IMITATION)}, not to --algo {config.algo}")
     if config.algo == "seq":  # the supervised pointer labeller: its own loop, no SB3 model (agents.sequence)
-        from agents.sequence import train_seq
+        from agents.sequence import train_seq_phases
         keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
-        return train_seq(config, _check_out(Path(config.out), config.into_package),
-                         load_hyperparams("seq", keys, config.hyperparams_file))
+        return train_seq_phases(config, _check_out(Path(config.out), config.into_package),
+                                load_hyperparams("seq", keys, config.hyperparams_file))
     run = _Run(config)
     if config.algo in IMITATION:
         from agents.experts import make_expert

@@ -2,6 +2,8 @@
 depends on pulses beyond its lag), checkpoint round trip, training entry, and the shipped checkpoint
 labelling a pulse file from an independent generator through `deint label`."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -153,6 +155,59 @@ def test_train_entry_writes_a_resumable_checkpoint(tmp_path):
     with pytest.raises(DeintError, match="blind scenarios only"):
         train(TrainConfig(out=tmp_path / "r2", algo="seq", scenarios=("core-v0/core-n2-spread4-jitter0.05",),
                           hyperparams_file=hp, progress=False))
+
+
+TINY_SEQ = ("  window: 8\n  context: 16\n  episodes_per_step: 1\n  pulses_per_episode: 16\n  validation_episodes: 1\n"
+            "  d_model: 8\n  heads: 2\n  layers: 1\n  ff: 16\n  chain_dropout: 0.1\n")
+
+
+def deint_train(*args: str) -> None:
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", "from deint_env.cli import main; raise SystemExit(main())", "train",
+                          "--algo", "seq", "--scenario", "blind-v0/blind-n2to2-jitter0.1", "--lag", "2", "--no-progress",
+                          *args], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+
+
+def test_phases_in_the_yaml_are_the_two_commands_run_by_hand(tmp_path):
+    """One `deint train` of a YAML entry with phases gives bitwise the weights of its phases run as
+    separate `deint train` commands, each a fresh process, the second resuming from the first's
+    last.safetensors."""
+    from agents.config import TrainConfig
+    from agents.train import train
+
+    recipe = tmp_path / "recipe.yml"
+    recipe.write_text("default:\n" + TINY_SEQ + "  own_chains: 0.5\n  phases:\n"
+                      "    - {n_timesteps: 40, own_chains: 0.0, seed: 0, eval_every: 16}\n"
+                      "    - {n_timesteps: 72, own_chains: 1.0, seed: 1, eval_every: 24}\n")
+    first, second = tmp_path / "first.yml", tmp_path / "second.yml"
+    first.write_text("default:\n" + TINY_SEQ + "  own_chains: 0.0\n")
+    second.write_text("default:\n" + TINY_SEQ + "  own_chains: 1.0\n")
+    config = TrainConfig(out=tmp_path / "one", algo="seq", scenarios=("blind-v0/blind-n2to2-jitter0.1",), lag=2,
+                         hyperparams_file=recipe, progress=False)
+    assert train(config).timesteps == 80  # the one command (in this process: the phases share it)
+    deint_train("--hyperparams", str(first), "--timesteps", "40", "--eval-every", "16", "--seed", "0",
+                "-o", str(tmp_path / "two"))
+    after_first = load_checkpoint(tmp_path / "two" / "last.safetensors")
+    deint_train("--hyperparams", str(second), "--timesteps", "72", "--eval-every", "24", "--seed", "1",
+                "-o", str(tmp_path / "two"))
+    for name in ("last", "best"):
+        one, two = (load_checkpoint(tmp_path / d / f"{name}.safetensors") for d in ("one", "two"))
+        assert one.meta.timesteps == two.meta.timesteps and one.tensors.keys() == two.tensors.keys()
+        assert all(torch.equal(one.tensors[k], two.tensors[k]) for k in one.tensors), name
+    one = load_checkpoint(tmp_path / "one" / "last.safetensors")
+    assert one.meta.timesteps == 80 and after_first.meta.timesteps == 48  # 16 pulses a step: 3 + 2 steps
+    assert one.meta.notes["phase"] == "2/2" and one.meta.hyperparameters["own_chains"] == 1.0
+    assert not all(torch.equal(one.tensors[k], after_first.tensors[k]) for k in one.tensors)  # phase 2 trained
+    evals = [json.loads(x)["timesteps"] for x in (tmp_path / "one" / "eval.jsonl").read_text().splitlines()]
+    assert evals == [16, 32, 48, 80]  # phase 2 validates first at 48 + 24 -> 80
+    assert train(config).timesteps == 80 and len((tmp_path / "one" / "eval.jsonl").read_text().splitlines()) == 4
+    # (a rerun finds both phases done)
+    with pytest.raises(DeintError, match="--timesteps does not apply"):
+        train(TrainConfig(out=tmp_path / "x", algo="seq", scenarios=("blind-v0/blind-n2to2-jitter0.1",),
+                          timesteps=10, hyperparams_file=recipe, progress=False))
 
 
 def independent_pulses(periods, n, sigma, rng):

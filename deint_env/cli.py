@@ -684,13 +684,15 @@ def _add_leaderboard(sub) -> None:
                     "(per episode; an interrupted run resumes from it), leaderboard.json and .csv (normalised "
                     "score IQM and mean with 95% stratified-bootstrap intervals, accuracy, P_e, V-measure, ARI, "
                     "per-tag scores, period error vs CRLB, us/pulse, lag, coverage), README.md, index.html and "
-                    "PNG plots.  Default policies: every reference policy.  `deint leaderboard submit` scores "
+                    "PNG plots.  Default policies: every reference policy (with --all, the ones each leaderboard "
+                    "records).  `deint leaderboard submit` scores "
                     "labels made elsewhere; `deint leaderboard export` writes a policy's labels in that format.")
     which = p.add_mutually_exclusive_group()
     which.add_argument("--suite", help="a suite name (see `deint suites`)")
     which.add_argument("--all", action="store_true",
                        help="regenerate every published leaderboard (each suite with a folder under --root holding "
-                            "leaderboard.json)")
+                            "leaderboard.json), each with the policy specs and scope it records (--policy/--policies: "
+                            "those instead)")
     p.add_argument("--policy", action="append", default=[], metavar="SPEC",
                    help="a policy, NAME or NAME:key=value,... (repeatable; default: every reference policy)")
     p.add_argument("--policies", metavar="A,B,...", help="policies by plain name, comma-separated")
@@ -765,18 +767,27 @@ def _check_reps(reps: int) -> None:
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import Scope, build, default_policies, published_suites
+    from deint_env.leaderboard import Scope, board_policies, build, default_policies, published_suites
 
     if not args.all and args.suite is None:
         raise DeintError("name a suite: --suite SUITE, or --all for the published leaderboards")
     if args.all and (args.scenarios is not None or args.max_seeds is not None):
-        raise DeintError("--all regenerates the full leaderboards; --scenarios and --max-seeds are for one --suite")
+        raise DeintError("--all rebuilds each leaderboard at the scope it records; --scenarios and --max-seeds are "
+                         "for one --suite")
     if args.workers is not None and args.workers < 1:
         raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
     _check_reps(args.reps)
-    policies = _run_policies(args) if args.policy or args.policies else default_policies()
-    scopes = [Scope(s) for s in published_suites(args.root)] if args.all else [_scope(args.suite, args)]
-    for scope in scopes:
+    named = _run_policies(args) if args.policy or args.policies else None
+    if args.all:  # each board as it was built: its own policy specs (parameters included) and scope
+        runs = []
+        for suite in published_suites(args.root):
+            folder = Path(args.root) / suite
+            runs.append((Scope.of_folder(folder, suite), named or board_policies(folder)))
+    else:
+        runs = [(_scope(args.suite, args), named or default_policies())]
+    for scope, policies in runs:
+        if args.all:
+            _status(f"deint: {scope.suite}: {len(policies)} policies: {' '.join(policies)}")
         folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
                               reps=args.reps, executor=args.executor, address=args.address)
         _leaderboard_report(board, folder)

@@ -285,3 +285,39 @@ def test_published_suites_are_the_folders_holding_a_leaderboard(tmp_path):
     (tmp_path / "no-such-suite" / "leaderboard.json").write_text("{}")
     assert published_suites(tmp_path) == ["core-v0"]
     assert set(published_suites("leaderboards")) >= {"paper-v0", "core-v0", "robust-v0", "agile-v0"}
+
+
+def test_all_rebuilds_each_board_with_its_own_policies_and_scope(tmp_path, monkeypatch):
+    """`deint leaderboard --all` plays on each board exactly the specs its leaderboard.json records
+    (parameters included; incomplete ones too; submissions are not played) at the board's own scope."""
+    import importlib
+
+    build_module = importlib.import_module("deint_env.leaderboard.build")  # the module, not the function
+    core = Scope(SUITE, SCENARIOS[:1], max_seeds=2)
+    paper = Scope("paper-v0", ("mk94-single-var9",), max_seeds=1)
+    build(core, ["random", "fdp:lookahead=2"], workers=1, root=tmp_path, progress=False, reps=REPS)
+    build(paper, ["nearest-prior"], workers=1, root=tmp_path, progress=False, reps=REPS)
+    sub = tmp_path / "sub.jsonl"
+    scope_args = ["--scenarios", SCENARIOS[0], "--max-seeds", "2"]
+    assert main(["leaderboard", "export", "--suite", SUITE, "--policy", "nearest-prior", "-o", str(sub),
+                 "--no-progress", *scope_args]) == 0
+    assert main(["leaderboard", "submit", str(sub), "--suite", SUITE, "--name", "mine", "--root", str(tmp_path),
+                 "--reps", str(REPS), "--no-progress"]) == 0
+    path = tmp_path / SUITE / "results.jsonl"  # an interrupted run: random lacks one episode
+    recs = [json.loads(line) for line in path.read_text().splitlines()]
+    drop = next(r for r in recs if r["policy"] == "random")
+    path.write_text("".join(json.dumps(r) + "\n" for r in recs if r is not drop))
+    assert write(tmp_path / SUITE, core, reps=REPS)["incomplete"] == {"random": 1}
+
+    played, real = [], build_module.evaluate
+    monkeypatch.setattr(build_module, "evaluate", lambda policies, target, **kw: (
+        played.append((sorted(policies), target, kw["max_seeds"])), real(policies, target, **kw))[1])
+    jobs = _count_jobs(monkeypatch)
+    assert main(["leaderboard", "--all", "--root", str(tmp_path), "--workers", "1", "--reps", str(REPS),
+                 "--no-progress"]) == 0
+    assert played == [(["fdp:lookahead=2", "random"], f"{SUITE}/{SCENARIOS[0]}", 2),
+                      (["nearest-prior"], "paper-v0/mk94-single-var9", 1)]
+    assert len(jobs) == 1  # only random's missing episode
+    board = json.loads((tmp_path / SUITE / "leaderboard.json").read_text())
+    assert sorted(r["policy"] for r in board["rows"]) == ["fdp:lookahead=2", "mine (submitted)", "random"]
+    assert board["incomplete"] == {} and board["scope"] == {"scenarios": [SCENARIOS[0]], "max_seeds": 2}

@@ -1,6 +1,7 @@
 """Leaderboards: every policy on a suite's test episodes, scored with honest statistics.
 
-`deint leaderboard --suite SUITE` (or `build`) writes `leaderboards/<suite>/`:
+`deint leaderboard --suite SUITE` (or `build`) writes `leaderboards/<suite>/`; `deint leaderboard --all`
+rebuilds every such folder with the policy specs and scope its leaderboard.json records:
 
 - `results.jsonl`: one runner record per (entry, test episode), in canonical order; the run resumes
   from it and never replays a finished episode;
@@ -19,8 +20,8 @@ estimates), `render` (JSON, CSV, README, HTML, and publishing every file togethe
 `submit` (submissions and `export`).  Columns come from the metric table `deint_env.metrics.METRICS`.
 """
 
-from deint_env.leaderboard.build import Scope, build, default_policies, published_suites, write
+from deint_env.leaderboard.build import Scope, board_policies, build, default_policies, published_suites, write
 from deint_env.leaderboard.submit import export, score_submission, submit
 
-__all__ = ["Scope", "build", "default_policies", "published_suites", "export", "score_submission", "submit",
-           "write"]
+__all__ = ["Scope", "board_policies", "build", "default_policies", "published_suites", "export", "score_submission",
+           "submit", "write"]

@@ -34,9 +34,26 @@ TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-
 
 def published_suites(root: str | os.PathLike = DEFAULT_ROOT) -> list[str]:
     """The suites with a leaderboard under `root` (a folder named after the suite holding leaderboard.json):
-    publishing a new one is building it once; `deint leaderboard --all` then keeps it up to date."""
+    publishing a new one is building it once; `deint leaderboard --all` then rebuilds it as it was built
+    (`board_policies`, `Scope.of_folder`)."""
     root = Path(root)
     return [s for s in list_suites() if (root / s / BOARD).is_file()]
+
+
+def board_policies(folder: Path) -> list[str]:
+    """The policy specs a leaderboard was built with, as its leaderboard.json records them: every
+    entry's `policy` (the canonical spec, parameters included), then those left incomplete or stale
+    (a run that did not finish, or an older version), submissions aside (they are scored, not played)."""
+    from deint_env.leaderboard.submit import SUFFIX
+
+    path = folder / BOARD
+    try:
+        board = json.loads(path.read_text())
+        rows, incomplete, stale = board["rows"], board["incomplete"], board["stale"]
+        specs = [r["policy"] for r in rows if not r["submitted"]] + list(incomplete) + list(stale)
+    except (OSError, ValueError, KeyError, TypeError):
+        raise DeintError(f"{path}: is not a leaderboard file; remove it or regenerate the folder") from None
+    return list(dict.fromkeys(s for s in specs if not s.endswith(SUFFIX)))
 
 
 def default_policies() -> list[str]:

@@ -30,6 +30,7 @@ DEFAULT_ROOT = Path("leaderboards")
 RESULTS = "results.jsonl"
 BOARD = "leaderboard.json"
 TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
+SUFFIX = " (submitted)"  # a submission's entry is its name and this (deint_env.leaderboard.submit)
 
 
 def published_suites(root: str | os.PathLike = DEFAULT_ROOT) -> list[str]:
@@ -44,8 +45,6 @@ def board_policies(folder: Path) -> list[str]:
     """The policy specs a leaderboard was built with, as its leaderboard.json records them: every
     entry's `policy` (the canonical spec, parameters included), then those left incomplete or stale
     (a run that did not finish, or an older version), submissions aside (they are scored, not played)."""
-    from deint_env.leaderboard.submit import SUFFIX
-
     path = folder / BOARD
     try:
         board = json.loads(path.read_text())

@@ -47,7 +47,7 @@ from deint_env.formats import from_file_labels, read_bytes, to_file_labels
 from deint_env.formats.files import write_bytes, write_text
 from deint_env.formats.json_files import check_depth
 from deint_env.formats.npz import read_npz
-from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, write
+from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, SUFFIX, Scope, write
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
 from deint_env.runner import reference_accuracies
@@ -60,7 +60,6 @@ VERSION = 1
 HEADER_KEYS = ("format", "version", "suite", "name")
 EPISODE_KEYS = ("scenario", "seed", "labels")
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9 ._+:=,-]{0,63}")
-SUFFIX = " (submitted)"
 
 
 class _NonFinite:

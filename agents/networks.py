@@ -374,7 +374,8 @@ def action_scores(policy: BasePolicy, obs: dict[str, np.ndarray] | np.ndarray) -
         return policy.action_net(policy.mlp_extractor.forward_actor(features))
 
 
-def recurrent_scores(policy: RecurrentTrackPolicy, obs: dict[str, np.ndarray], states: tuple[torch.Tensor, torch.Tensor],
+def recurrent_scores(policy: RecurrentTrackPolicy, obs: dict[str, np.ndarray],
+                     states: tuple[torch.Tensor, torch.Tensor],
                      starts: np.ndarray) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
     """Logits of one step of `len(starts)` episodes and the actor's next LSTM states; rows with
     `starts` set begin an episode (their states are zeroed first, as in RecurrentPPO's rollouts)."""

@@ -5,8 +5,9 @@ network (`agents.networks.build_policy`), fills it from the safetensors weights,
 same features the agent trained on (the token layout 2 of `deint_env.features`, or the flat pulse
 layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  A recurrent network
 (RecurrentPPO's) carries its LSTM state from step to step, stepping on every env step as in training
-(look-ahead and padding steps too, which label nothing), and starts each episode from zeros.  `version` is the checkpoint's
-content hash: records of a retrained checkpoint written to the same path never pass for the old one.
+(look-ahead and padding steps too, which label nothing), and starts each episode from zeros.
+`version` is the checkpoint's content hash: records of a retrained checkpoint written to the same
+path never pass for the old one.
 `ppo` is this policy on the checked-in two-source checkpoint.
 """
 

@@ -166,8 +166,8 @@ def deint_train(*args: str) -> None:
     import sys
 
     run = subprocess.run([sys.executable, "-c", "from deint_env.cli import main; raise SystemExit(main())", "train",
-                          "--algo", "seq", "--scenario", "blind-v0/blind-n2to2-jitter0.1", "--lag", "2", "--no-progress",
-                          *args], capture_output=True, text=True)
+                          "--algo", "seq", "--scenario", "blind-v0/blind-n2to2-jitter0.1", "--lag", "2",
+                          "--no-progress", *args], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
 
 

@@ -360,6 +360,29 @@ def _in_first_gate(blk, y, cfg):
 
 
 @njit(cache=True, nogil=True)
+def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py, fx, fy, js):
+    """Two tracks (prior blocks bx, by) started one after the other: x's chain from pulse jx, then y's
+    from pulse jy among the pulses x's chain left (-1: the track's best first pulse, `_best_start`).
+    Returns the chains' total log-likelihood (-inf: a track found no first pulse); their pulses go to
+    px, py, their fits to fx, fy and their first pulses to js."""
+    if jx < 0:
+        jx = _best_start(toa, end, bx, look, cfg, log_q, log_1mq, used, px, fx)[1]
+        if jx < 0:
+            return -np.inf
+    v = _chain(toa, end, jx, bx, look, cfg, log_q, log_1mq, used, px, fx)
+    _mark(px, used, True)
+    if jy < 0:
+        jy = _best_start(toa, end, by, look, cfg, log_q, log_1mq, used, py, fy)[1]
+    if jy >= 0:
+        v += _chain(toa, end, jy, by, look, cfg, log_q, log_1mq, used, py, fy)
+    else:
+        v = -np.inf
+    _mark(px, used, False)
+    js[0], js[1] = jx, jy
+    return v
+
+
+@njit(cache=True, nogil=True)
 def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     """Joint track initiation on the first `end` pulses (a dense start puts many sources' first arrivals
     in each other's phase gates; judged one track at a time, a track takes a neighbour's pulse train as
@@ -373,7 +396,7 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     there.  Only tracks whose first arrival's gate is narrower than a period take part; a track with no
     pulse train of its own (`_own_train`) is left to the beam."""
     n = blk.shape[0]
-    look = cfg.look_init
+    look = max(cfg.look_init, int(math.ceil((toa[end - 1] - toa[0]) / np.min(blk[:, PERIOD]))))
     used = np.zeros(end, np.bool_)
     path = np.empty(look + 1, np.int64)
     fit = np.empty(5)
@@ -382,29 +405,25 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     paths = np.full((n, look + 1), -1, np.int64)
     fits = np.empty((n, 5))
     started = np.zeros(n, np.bool_)
-    for i in range(n):
+    for i in np.argsort(blk[:, PERIOD]):
         s = blk[i, P_XX] + 2.0 * blk[i, P_TX] + blk[i, P_TT] + cfg.interval_var + cfg.jitter_var
-        if 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
-            val[i], first[i] = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
-    while True:
-        i = np.argmax(val)
-        if val[i] == -np.inf:
-            break
+        if not 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
+            continue
         v, j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
-        val[i] = -np.inf
         if j < 0:
             continue
-        if v < np.max(val):  # another track's (stale, so upper) value is higher: judge that one first
-            val[i], first[i] = v, j
-            continue
+        first[i] = j
         _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
         if not _own_train(path):
             continue
         _mark(path, used, True)
-        started[i], first[i], paths[i], fits[i] = True, j, path, fit
+        started[i], paths[i], fits[i] = True, path, fit
     path2 = np.empty(look + 1, np.int64)
     fit2 = np.empty(5)
-    for _ in range(2):
+    best_a, best_b = np.empty(look + 1, np.int64), np.empty(look + 1, np.int64)
+    fit_a, fit_b = np.empty(5), np.empty(5)
+    js = np.empty(2, np.int64)
+    for _ in range(4):
         swapped = False
         for a in range(n):
             for b in range(a + 1, n):
@@ -413,19 +432,29 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
                     continue
                 _mark(paths[a], used, False)
                 _mark(paths[b], used, False)
-                # the two assignments judged alike: a's chain first, then b's among the pulses left
-                now = _chain(toa, end, first[a], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
-                _mark(path, used, True)
-                now += _chain(toa, end, first[b], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
-                _mark(path, used, False)
-                alt = _chain(toa, end, first[b], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
-                _mark(path, used, True)
-                alt += _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
-                _mark(path, used, False)
-                if alt > now and _own_train(path) and _own_train(path2):
-                    first[a], first[b] = first[b], first[a]
-                    paths[a], fits[a], paths[b], fits[b] = path, fit, path2, fit2
+                # the pair started anew, six ways: on their first pulses, on each other's, or each on
+                # its best pulse left (`_best_start`), each with a's chain chosen first or b's (two
+                # sources of near-equal phase and period: a chain chosen first may hop onto the other's
+                # train, so the order matters)
+                fa, fb = first[a], first[b]
+                best = -np.inf
+                for way in range(6):
+                    ja, jb = (fa, fb) if way < 2 else ((fb, fa) if way < 4 else (-1, -1))
+                    if way % 2 == 0:
+                        v = _start_two(toa, end, blk[a], blk[b], ja, jb, look, cfg, log_q, log_1mq, used, path,
+                                       path2, fit, fit2, js)
+                        ja, jb = js[0], js[1]
+                    else:
+                        v = _start_two(toa, end, blk[b], blk[a], jb, ja, look, cfg, log_q, log_1mq, used, path2,
+                                       path, fit2, fit, js)
+                        ja, jb = js[1], js[0]
+                    if v > best and (way < 2 or (_own_train(path) and _own_train(path2))):
+                        best = v
+                        first[a], first[b] = ja, jb
+                        best_a[:], best_b[:], fit_a[:], fit_b[:] = path, path2, fit, fit2
+                if first[a] != fa or first[b] != fb:
                     swapped = True
+                paths[a], paths[b], fits[a], fits[b] = best_a, best_b, fit_a, fit_b
                 _mark(paths[a], used, True)
                 _mark(paths[b], used, True)
         # a track left without a train of its own whose first gate holds a started track's first pulse:

@@ -431,7 +431,7 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     best_a, best_b = np.empty(look + 1, np.int64), np.empty(look + 1, np.int64)
     fit_a, fit_b = np.empty(5), np.empty(5)
     js = np.empty(2, np.int64)
-    for _ in range(4):
+    for _ in range(4):  # a cascade (tracks each on a neighbour's train) is undone one pair per pass
         swapped = False
         for a in range(n):
             for b in range(a + 1, n):

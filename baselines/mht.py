@@ -35,9 +35,12 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   has passed the beam is `start_beam` wide.  In a crowded start (32 sources: a first arrival's gate
   holds ~20 pulses) that is not enough: each track's 6-arrival look-ahead, judged alone, finds a
   neighbour's pulse train (or a harmonic of one) about as good as its own.  There the tracks are
-  started jointly (`_initiate`): each track's best chain of `look_init` (16) arrivals over the
-  buffered pulses, the best-explained track first, its pulses then taken (a greedy assignment with
-  pairwise exchanges), and each started track's prior becomes its chain's first pulse and period.
+  started jointly (`_initiate`): each track's best chain of arrivals over the whole buffered start
+  (`look_init` (16) periods of the longest source, at most lag - nscan pulses), the tracks in order of
+  prior period (a slow track's chain may be a harmonic of a faster source's train, never the
+  reverse), each track's pulses then taken, pairs of tracks whose first gates overlap re-started
+  jointly (a greedy assignment with pairwise re-starts), and each started track's prior becomes its
+  chain's first pulse and period.
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
   restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
   period), its period kept (or reset to the prior when it has left the prior by more than 2
@@ -147,7 +150,7 @@ class Settings(NamedTuple):
     dead: int  # arrivals a track must have missed in a row before it may restart
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
     initiate: bool  # joint track initiation on the buffered start (`_initiate`)
-    look_init: int  # and the arrivals its pulse chains look ahead
+    look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
 
 
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
@@ -360,51 +363,75 @@ def _in_first_gate(blk, y, cfg):
 
 
 @njit(cache=True, nogil=True)
+def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py, fx, fy, js):
+    """Two tracks (prior blocks bx, by) started one after the other: x's chain from pulse jx, then y's
+    from pulse jy among the pulses x's chain left (-1: the track's best first pulse, `_best_start`).
+    Returns the chains' total log-likelihood (-inf: a track found no first pulse); their pulses go to
+    px, py, their fits to fx, fy and their first pulses to js."""
+    if jx < 0:
+        jx = _best_start(toa, end, bx, look, cfg, log_q, log_1mq, used, px, fx)[1]
+        if jx < 0:
+            return -np.inf
+    v = _chain(toa, end, jx, bx, look, cfg, log_q, log_1mq, used, px, fx)
+    _mark(px, used, True)
+    if jy < 0:
+        jy = _best_start(toa, end, by, look, cfg, log_q, log_1mq, used, py, fy)[1]
+    if jy >= 0:
+        v += _chain(toa, end, jy, by, look, cfg, log_q, log_1mq, used, py, fy)
+    else:
+        v = -np.inf
+    _mark(px, used, False)
+    js[0], js[1] = jx, jy
+    return v
+
+
+@njit(cache=True, nogil=True)
 def _initiate(toa, end, blk, cfg, log_q, log_1mq):
     """Joint track initiation on the first `end` pulses (a dense start puts many sources' first arrivals
     in each other's phase gates; judged one track at a time, a track takes a neighbour's pulse train as
-    readily as its own).  Greedy: the track whose best pulse chain (`_chain`) explains the buffered
-    pulses best is started first, its chain's pulses are then unavailable to the others, and so on
-    (a lazy greedy: removing pulses only lowers a chain's value).  Then pairwise exchanges: two started
-    tracks whose first pulses lie in each other's gates swap them when the swapped chains explain the
-    pulses better together (two sources of similar period: the greedy gives the first track judged the
-    train its prior fits best, not the pair's best assignment).  A started track's prior phase becomes
-    its chain's first pulse (deviation sigma_w) and its period the chain's fit, so the beam starts it
-    there.  Only tracks whose first arrival's gate is narrower than a period take part; a track with no
-    pulse train of its own (`_own_train`) is left to the beam."""
+    readily as its own).  Greedy, in order of prior period: each track's best pulse chain (`_chain`) is
+    taken and its pulses are then unavailable to the tracks after it.  The order matters because every
+    m-th pulse of a source of period T is a train of period m T, so a long-period track's chain may be a
+    faster source's harmonic, never the reverse (a fast chain on a slow train misses most arrivals);
+    judged by chain value instead, a slow track whose prior sat near a harmonic took it, and its own
+    source was lost.  For the same reason every chain covers the whole buffered start (at least
+    `look_init` arrivals): a fast track's chain of 16 arrivals left its later pulses free for a slow
+    track's harmonic.  Then pairwise re-starts: two started tracks whose first pulses lie in each
+    other's gates are started anew in the best of six ways (`_start_two`: on their own first pulses, on
+    each other's, or each on its best pulse left, each with either chain chosen first -- two sources of
+    near-equal period and phase: the chain chosen first may hop onto the other's train, and the greedy
+    gives the first track judged the train its prior fits best, not the pair's best assignment).  A
+    started track's prior phase becomes its chain's first pulse (deviation sigma_w) and its period the
+    chain's fit, so the beam starts it there.  Only tracks whose first arrival's gate is narrower than a
+    period take part; a track with no pulse train of its own (`_own_train`) is left to the beam."""
     n = blk.shape[0]
-    look = cfg.look_init
+    look = max(cfg.look_init, int(math.ceil((toa[end - 1] - toa[0]) / np.min(blk[:, PERIOD]))))
     used = np.zeros(end, np.bool_)
     path = np.empty(look + 1, np.int64)
     fit = np.empty(5)
-    val = np.full(n, -np.inf)
     first = np.full(n, -1, np.int64)
     paths = np.full((n, look + 1), -1, np.int64)
     fits = np.empty((n, 5))
     started = np.zeros(n, np.bool_)
-    for i in range(n):
+    for i in np.argsort(blk[:, PERIOD]):
         s = blk[i, P_XX] + 2.0 * blk[i, P_TX] + blk[i, P_TT] + cfg.interval_var + cfg.jitter_var
-        if 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
-            val[i], first[i] = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
-    while True:
-        i = np.argmax(val)
-        if val[i] == -np.inf:
-            break
-        v, j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
-        val[i] = -np.inf
+        if not 2.0 * math.sqrt(cfg.gate2 * s) < blk[i, PERIOD]:
+            continue
+        j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)[1]
         if j < 0:
             continue
-        if v < np.max(val):  # another track's (stale, so upper) value is higher: judge that one first
-            val[i], first[i] = v, j
-            continue
+        first[i] = j
         _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
         if not _own_train(path):
             continue
         _mark(path, used, True)
-        started[i], first[i], paths[i], fits[i] = True, j, path, fit
+        started[i], paths[i], fits[i] = True, path, fit
     path2 = np.empty(look + 1, np.int64)
     fit2 = np.empty(5)
-    for _ in range(2):
+    best_a, best_b = np.empty(look + 1, np.int64), np.empty(look + 1, np.int64)
+    fit_a, fit_b = np.empty(5), np.empty(5)
+    js = np.empty(2, np.int64)
+    for _ in range(4):  # a cascade (tracks each on a neighbour's train) is undone one pair per pass
         swapped = False
         for a in range(n):
             for b in range(a + 1, n):
@@ -413,19 +440,29 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
                     continue
                 _mark(paths[a], used, False)
                 _mark(paths[b], used, False)
-                # the two assignments judged alike: a's chain first, then b's among the pulses left
-                now = _chain(toa, end, first[a], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
-                _mark(path, used, True)
-                now += _chain(toa, end, first[b], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
-                _mark(path, used, False)
-                alt = _chain(toa, end, first[b], blk[a], look, cfg, log_q, log_1mq, used, path, fit)
-                _mark(path, used, True)
-                alt += _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path2, fit2)
-                _mark(path, used, False)
-                if alt > now and _own_train(path) and _own_train(path2):
-                    first[a], first[b] = first[b], first[a]
-                    paths[a], fits[a], paths[b], fits[b] = path, fit, path2, fit2
+                # the pair started anew, six ways: on their first pulses, on each other's, or each on
+                # its best pulse left (`_best_start`), each with a's chain chosen first or b's (two
+                # sources of near-equal phase and period: a chain chosen first may hop onto the other's
+                # train, so the order matters)
+                fa, fb = first[a], first[b]
+                best = -np.inf
+                for way in range(6):
+                    ja, jb = (fa, fb) if way < 2 else ((fb, fa) if way < 4 else (-1, -1))
+                    if way % 2 == 0:
+                        v = _start_two(toa, end, blk[a], blk[b], ja, jb, look, cfg, log_q, log_1mq, used, path,
+                                       path2, fit, fit2, js)
+                        ja, jb = js[0], js[1]
+                    else:
+                        v = _start_two(toa, end, blk[b], blk[a], jb, ja, look, cfg, log_q, log_1mq, used, path2,
+                                       path, fit2, fit, js)
+                        ja, jb = js[1], js[0]
+                    if v > best and (way < 2 or (_own_train(path) and _own_train(path2))):
+                        best = v
+                        first[a], first[b] = ja, jb
+                        best_a[:], best_b[:], fit_a[:], fit_b[:] = path, path2, fit, fit2
+                if first[a] != fa or first[b] != fb:
                     swapped = True
+                paths[a], paths[b], fits[a], fits[b] = best_a, best_b, fit_a, fit_b
                 _mark(paths[a], used, True)
                 _mark(paths[b], used, True)
         # a track left without a train of its own whose first gate holds a started track's first pulse:
@@ -755,7 +792,8 @@ class MHT:
     when every track's phase is known to within a period and the first arrivals' gates hold this many
     pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
     beam's own start is as good; 0: whenever the phases are known), `look_init`
-    (arrivals of each pulse chain judged by the joint start)."""
+    (the joint start buffers this many periods of the longest source; each pulse chain it judges has
+    at least this many arrivals and covers the buffered start)."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,

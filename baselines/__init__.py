@@ -32,8 +32,8 @@ POLICIES = (
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them); version 3: joint
-    # start of crowded scenes
-    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=3,
+    # start of crowded scenes; version 4: priors tested against the buffered start, restarted from FDP when rejected
+    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=4,
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
     PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,

@@ -61,10 +61,10 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   as many pulses unexplained (on agile-v0 a constant-period KF explains a modulated train poorly
   whatever its start; a restart that explains little more is not taken).  FDP runs from the same
   priors, so track identities keep the priors' order (labels are scored against it).  The test needs
-  priors that predict each source's pulses: it runs when every track's first gate is narrower than
-  its period (a vague period or an unknown phase predicts nothing to test; the beam's own start
-  handles those) and with at most 12 sources (FDP's full tree costs N^4 a pulse).  A start the priors
-  explain is labelled exactly as without the test.
+  priors that predict each source's pulses: it runs when every track's first arrival is predicted to
+  within a period (its gate's half-width; a vague period or an unknown phase predicts nothing to test,
+  the beam's own start handles those) and with at most 12 sources (FDP's full tree costs N^4 a
+  pulse).  A start the priors explain is labelled exactly as without the test.
 - Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
   with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
   r = (spurious + 1) / (arrivals + 20).  Stated rates are used as given (floored so a log stays finite).
@@ -878,9 +878,9 @@ class MHT:
             beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
             look=self.look, dead=self.dead, reserve=self.lag - self.nscan, initiate=initiate, look_init=self.look_init)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
-        # it runs when every track's phase is known to within a period (a vague period or phase fails this):
-        # then the priors predict where each source's pulses are
-        self.vettable = bool(np.all(width < p[:, PERIOD]))
+        # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
+        # vague period or phase fails this): then the priors predict where each source's pulses are
+        self.vettable = bool(np.all(0.5 * width < p[:, PERIOD]))
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)

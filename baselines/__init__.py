@@ -33,7 +33,8 @@ POLICIES = (
                            "update; coasts through missed arrivals"),
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them); version 3: joint
     # start of crowded scenes; version 4: the joint start in order of period, chains over the whole buffered
-    # start, pairs re-started both ways (labels change only where it runs: scale-v0's 32-source scenarios)
+    # start, pairs re-started both ways (labels change only where it runs: scale-v0's 32-source scenarios);
+    # and priors tested against the buffered start, restarted from FDP when rejected (paper-v0's wrong priors)
     PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=4,
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),

@@ -46,6 +46,28 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   period), its period kept (or reset to the prior when it has left the prior by more than 2
   deviations: a captured track), judged by `look_start` arrivals ahead.  A source that
   starts late, stops, or was captured by a neighbour at the start is picked up again.
+- Prior-consistency test (`MHT._vet`).  A gated tracker trusts its priors: a prior that is confidently
+  wrong (MK94 V-B-2's x_{1|0} = (60, 96) with Sigma = I for true periods (11, 80)) gates out the true
+  pulses, and the spurious hypothesis, always available, explains them, so the track never learns (a
+  prior T = 60 even locks on every fifth pulse of the T = 11 train).  FDP does not fail so: it gives
+  every pulse to some source, so its KF learns the period from the errors (MK94's point).  So, once
+  the start is buffered (the pulses up to pulse 0's initiation look-ahead, which the beam waits for
+  anyway), the priors are tested against it: track by track, the best pulse chain from the prior
+  over the whole window (`_explained`, pulses taken by earlier tracks excluded), and the pulses all
+  the chains explain.  Under the priors the unexplained ones are spurious, r / (1 + r) of the pulses
+  (r the stated rate, 0.05 if unknown); when more than that plus 10 % of the window is unexplained
+  the priors are rejected and the tracks restarted from MK94's FDP run over the window
+  (`_fdp_start`: a track's period the FDP's final estimate, its phase the first pulse FDP gave it),
+  each then polished by its best chain over the window (phase its first pulse, period its KF fit, as
+  `_initiate` starts a track: FDP's period carries its early mistakes, ~5 % on MK94 V-B-2's T = 80).
+  The restart is kept only when it explains at least 10 % more of the window and leaves at most half
+  as many pulses unexplained (on agile-v0 a constant-period KF explains a modulated train poorly
+  whatever its start; a restart that explains little more is not taken).  FDP runs from the same
+  priors, so track identities keep the priors' order (labels are scored against it).  The test needs
+  priors that predict each source's pulses: it runs when every track's first arrival is predicted to
+  within a period (its gate's half-width; a vague period or an unknown phase predicts nothing to test,
+  the beam's own start handles those) and with at most 12 sources (FDP's full tree costs N^4 a
+  pulse).  A start the priors explain is labelled exactly as without the test.
 - Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
   with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
   r = (spurious + 1) / (arrivals + 20).  Stated rates are used as given (floored so a log stays finite).
@@ -156,6 +178,10 @@ class Settings(NamedTuple):
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
 _INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
+# the prior-consistency test (`MHT._vet`)
+_VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are not tested
+_VET_SLACK = 0.1  # unexplained pulses allowed beyond the spurious rate, and the gain a restart must bring
+_VET_LOOK = 256  # at most this many arrivals per chain
 
 
 @njit(cache=True, nogil=True)
@@ -501,6 +527,32 @@ def _initiate(toa, end, blk, cfg, log_q, log_1mq):
             blk[i, P_TT] = var_t
             blk[i, P_TX] = -var_t
             blk[i, P_XX] = cfg.jitter_var + var_t
+
+
+@njit(cache=True, nogil=True)
+def _explained(toa, end, blk, cfg, log_q, log_1mq, looks, fitted):
+    """Prior-consistency test: the buffered pulses 0..end-1 the tracks (blocks `blk`) explain.  Track by
+    track (in index order) its best pulse chain (`_best_start`, `looks[i]` arrivals: the whole window)
+    among the pulses earlier tracks have not taken; its hits are taken.  Returns the pulses taken; a
+    track whose chain is its own train (`_own_train`) gets in `fitted[i]` the block it starts from when
+    restarted on it (as `_initiate` starts a track: phase the chain's first pulse, period its fit),
+    the others `blk[i]`."""
+    n = blk.shape[0]
+    used = np.zeros(end, np.bool_)
+    for i in range(n):
+        fitted[i] = blk[i]
+        path = np.empty(looks[i] + 1, np.int64)
+        fit = np.empty(5)
+        v, j = _best_start(toa, end, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit)
+        if j < 0:
+            continue
+        _chain(toa, end, j, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit)
+        _mark(path, used, True)
+        if _own_train(path):
+            var_t = 4.0 * fit[P_TT]
+            fitted[i, PERIOD], fitted[i, TAU] = fit[PERIOD], toa[j] - fit[PERIOD]
+            fitted[i, P_TT], fitted[i, P_TX], fitted[i, P_XX] = var_t, -var_t, cfg.jitter_var + var_t
+    return int(np.sum(used))
 
 
 @njit(cache=True, nogil=True)
@@ -863,6 +915,10 @@ class MHT:
             horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
             beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
             look=self.look, dead=self.dead, reserve=self.lag - self.nscan, initiate=initiate, look_init=self.look_init)
+        self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
+        # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
+        # vague period or phase fails this): then the priors predict where each source's pulses are
+        self.vettable = bool(np.all(0.5 * width < p[:, PERIOD]))
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
@@ -893,11 +949,78 @@ class MHT:
 
     def _run(self) -> None:
         self.called = self.n_seen
+        if not self.vetted:
+            cfg, y0 = self.cfg, self.toa[0]
+            ahead = cfg.horizon_start if y0 <= cfg.start_until else cfg.horizon
+            # what the driver needs before it processes pulse 0 (`_run`): its look-ahead buffered, or the lag's
+            # end, or the stream's
+            if self.ended or self.n_seen - 1 >= cfg.reserve or self.toa[self.n_seen - 1] >= y0 + ahead:
+                self.vetted = True
+                end = min(cfg.reserve + 1, int(np.searchsorted(self.toa[:self.n_seen], y0 + ahead, side="right")))
+                self._vet(end)
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
             self.cfg, self.counts, self.labels, self.n_labels)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
+
+    def _vet(self, end: int) -> None:
+        """The prior-consistency test and the data-driven restart (see the module docstring): the first
+        `end` pulses (what the driver has buffered before it labels pulse 0) against the priors."""
+        n, cfg = self.n, self.cfg
+        if not self.vettable or n > _VET_MAX_SOURCES or end < 2 * n:
+            return
+        toa = self.toa[:end]
+        log_q, log_1mq, _ = _rates(cfg, self.counts)
+        r = 0.05 if math.isnan(cfg.known_r) else cfg.known_r
+        # the pulses the sources are not expected to explain: spurious ones, r per source pulse
+        allowed = end * (r / (1.0 + r) + _VET_SLACK)
+        fitted = np.empty_like(self.prior)
+        explained = _explained(toa, end, self.prior, cfg, log_q, log_1mq, self._looks(toa, self.prior), fitted)
+        if end - explained <= allowed:
+            return
+        blk = self._fdp_start(toa)
+        again = _explained(toa, end, blk, cfg, log_q, log_1mq, self._looks(toa, blk), fitted)
+        # the restart must explain 10 % more of the window and half of what the priors left unexplained; the
+        # tracks start from their chains over the window from FDP's estimates (what the test has just found:
+        # a period FDP learnt early from wrong pulses is polished by the chain's KF)
+        if again - explained >= _VET_SLACK * end and end - again <= 0.5 * (end - explained):
+            self.prior[:] = fitted
+            self.cur.blk[0] = fitted
+
+    def _looks(self, toa: np.ndarray, blk: np.ndarray) -> np.ndarray:
+        """Arrivals a track's chain needs to cover the buffered window (at most `_VET_LOOK`)."""
+        span = toa[-1] - toa[0]
+        return np.minimum(np.ceil(span / blk[:, PERIOD]) + 1, _VET_LOOK).astype(np.int64)
+
+    def _fdp_start(self, toa: np.ndarray) -> np.ndarray:
+        """New prior blocks from MK94's FDP (`baselines.fdp`, as published) run over the buffered pulses:
+        FDP gives every pulse to some source, so its KF learns a period from a wrong prior.  A track's
+        period is the FDP's final estimate (variance 4x its own), its phase the first pulse the FDP gave it
+        that lies on that estimate's grid of arrivals; a track given fewer than 3 pulses keeps its prior."""
+        from baselines.fdp import CompiledFDPCore  # here: only a rejected prior needs it
+        core = CompiledFDPCore(self.priors, "lookahead", False, "phase", math.inf)
+        end, d = toa.size, 3
+        labels = np.empty(end, np.int64)
+        for k in range(end):
+            labels[k] = core.decide(toa[k:min(k + d + 1, end)])
+        state = core.best_state()
+        blk = self.prior.copy()
+        jv, iv, g2 = self.cfg.jitter_var, self.cfg.interval_var, self.cfg.gate2
+        for i in range(self.n):
+            mine = np.flatnonzero(labels == i)
+            if mine.size < 3:
+                continue
+            t, last, var_t = state[i, PERIOD], state[i, TAU], state[i, P_TT]
+            if not (t > 0.0 and math.isfinite(last) and var_t >= 0.0):  # lost (e.g. jitter beyond the period)
+                continue
+            m = np.round((last - toa[mine]) / t)
+            resid = toa[mine] - (last - m * t)
+            on = np.flatnonzero(resid ** 2 <= g2 * (jv + m * iv + m * m * var_t))
+            first = toa[mine[on[0]] if on.size else mine[0]]
+            var_t = 4.0 * var_t
+            blk[i] = (t, first - t, var_t, -var_t, jv + var_t)  # tau = phi - T, as `_initiate` starts a track
+        return blk
 
     def estimates(self) -> dict[str, np.ndarray]:
         blk, arr = self.cur.blk[0], self.cur.arrivals[0]

@@ -197,7 +197,7 @@ def test_mht_compiled_equals_interpreted(monkeypatch):
     policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0"
     compiled = play(make_policy(policy), ep).labels
     for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain", "_best_start",
-                 "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate"):
+                 "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained"):
         monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)
     interpreted = play(make_policy(policy), ep).labels
     np.testing.assert_array_equal(compiled, interpreted)
@@ -225,3 +225,51 @@ def test_mht_stays_in_bounds_on_a_long_pt_episode(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert 0.0 <= float(done.stdout.split()[-1]) <= 1.0
+
+
+def two_trains(periods, phases, n_time: float, jitter: float, seed: int):
+    """Two strictly periodic trains with TOA jitter (no deint_env.simulate): TOAs and sources."""
+    rng = np.random.default_rng(seed)
+    toa, src = [], []
+    for i, (t, phi) in enumerate(zip(periods, phases)):
+        arrivals = np.arange(phi, n_time, t)
+        toa.append(arrivals + jitter * rng.standard_normal(arrivals.size)), src.append(np.full(arrivals.size, i))
+    toa, src = np.concatenate(toa), np.concatenate(src)
+    order = np.argsort(toa, kind="stable")
+    return toa[order], src[order]
+
+
+def label_raw(policy, toa, priors):
+    """Play a policy on raw TOAs (step t labels pulse t - lag): its labels and the policy."""
+    policy.reset(priors, {})
+    out = [policy.act({"valid": 1, "toa": np.array([t])}) for t in toa]
+    out += [policy.act({"valid": 0, "toa": np.array([0.0])}) for _ in range(policy.lag)]
+    return np.array(out[policy.lag:]), policy
+
+
+def test_mht_learns_from_a_confidently_wrong_prior(monkeypatch):
+    """MK94 V-B-2's start: true periods (11, 80), priors (60, 96) with a deviation of 1.  The gated beam
+    alone calls the T = 11 train spurious (its prior locks on every fifth pulse); the consistency test
+    rejects the priors and FDP's restart puts both tracks on their trains, in the priors' order."""
+    toa, src = two_trains((11.0, 80.0), (3.0, 4.0), 6000.0, 1.0, seed=3)
+    priors = Priors(n_labels=2, period=np.array([60.0, 96.0]), phase=np.array([2.0, 1.0]),
+                    period_std=np.array([1.0, 1.0]), phase_std=np.array([1.0, 1.0]), jitter_std=1.0)
+    labels, policy = label_raw(make_policy("mht"), toa, priors)
+    assert np.mean(labels == src) >= 0.95
+    assert abs(policy.prior[0, mht_module.PERIOD] - 11.0) < 0.5 and abs(policy.prior[1, mht_module.PERIOD] - 80.0) < 2
+    monkeypatch.setattr(mht_module.MHT, "_vet", lambda self, end: None)
+    untested, _ = label_raw(make_policy("mht"), toa, priors)
+    assert np.mean(untested == src) < 0.5
+
+
+def test_mht_consistency_test_keeps_a_correct_prior(monkeypatch):
+    """Priors that explain the start are kept: the labels are those of the beam without the test."""
+    toa, src = two_trains((11.0, 80.0), (3.0, 4.0), 6000.0, 1.0, seed=3)
+    priors = Priors(n_labels=2, period=np.array([11.2, 79.0]), phase=np.array([2.0, 5.0]),
+                    period_std=np.array([0.5, 1.0]), phase_std=np.array([1.0, 1.0]), jitter_std=1.0)
+    labels, policy = label_raw(make_policy("mht"), toa, priors)
+    assert policy.vetted and policy.prior[0, mht_module.PERIOD] == 11.2 and policy.prior[1, mht_module.PERIOD] == 79.0
+    assert np.mean(labels == src) >= 0.95
+    monkeypatch.setattr(mht_module.MHT, "_vet", lambda self, end: None)
+    untested, _ = label_raw(make_policy("mht"), toa, priors)
+    np.testing.assert_array_equal(labels, untested)

@@ -61,6 +61,7 @@ import numpy as np
 from numba import njit
 
 from baselines.kalman import DLMModel, prior_block
+from baselines.mht_scorer import N_FEATURES, Scorer, apply as _learned
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable
 
@@ -101,8 +102,9 @@ class Beam(NamedTuple):
 
 
 class Scratch(NamedTuple):
-    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead),
-    the look-ahead cache per source (last pulse, steps, value; `used` entries) and the search stack."""
+    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead,
+    the learned scorer's features), the look-ahead cache per source (last pulse, steps, value; `used`
+    entries) and the search stack."""
 
     parent: np.ndarray
     source: np.ndarray
@@ -112,6 +114,7 @@ class Scratch(NamedTuple):
     e: np.ndarray
     s: np.ndarray
     h: np.ndarray
+    feat: np.ndarray
     cache_last: np.ndarray
     cache_steps: np.ndarray
     cache_val: np.ndarray
@@ -122,7 +125,7 @@ class Scratch(NamedTuple):
     def empty(cls, candidates: int, n: int, look: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((n, _CACHE), np.int64), np.zeros((n, _CACHE)),
+                   np.zeros(c), np.zeros(c), np.zeros((c, N_FEATURES)), np.zeros((n, _CACHE), np.int64), np.zeros((n, _CACHE)),
                    np.zeros((n, _CACHE)), np.zeros(n, np.int64), np.zeros((look * (_BRANCH + 1) + 2, 8)))
 
 
@@ -476,10 +479,11 @@ def _restart_period(t, ptt, prior_t, prior_tt):
 
 
 @njit(cache=True, nogil=True)
-def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w):
+def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
-    track has no good continuation loses at once instead of a period later."""
+    track has no good continuation loses at once instead of a period later.  A learned scorer `net`
+    (`baselines.mht_scorer`; none: w1 has no rows) corrects every candidate's score."""
     y = toa[k]
     n = c.blk.shape[1]
     ring = c.label.shape[1]
@@ -487,6 +491,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
     w.used[:] = 0
     nc = 0
     for b in range(size):
+        first = nc
         for i in range(n):
             t = c.blk[b, i, PERIOD]
             tau = c.blk[b, i, TAU]
@@ -569,6 +574,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         w.score[nc] = c.score[b] + log_rho
         w.rank[nc] = w.score[nc] + c.ahead[b]
         nc += 1
+        if net.w1.shape[0] > 0:
+            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.h[b], c.arrivals[b], c.blk[b], log_q, log_rho,
+                     cfg.pulse_rate)
     order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
     slot = k % ring
     mask = zob.shape[1] - 1
@@ -683,7 +691,7 @@ def _rates(cfg, counts):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels, net):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
@@ -710,7 +718,7 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w, net)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:
@@ -755,11 +763,12 @@ class MHT:
     when every track's phase is known to within a period and the first arrivals' gates hold this many
     pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
     beam's own start is as good; 0: whenever the phases are known), `look_init`
-    (arrivals of each pulse chain judged by the joint start)."""
+    (arrivals of each pulse chain judged by the joint start).  `scorer`: a learned correction of the
+    candidates' scores (`baselines.mht_scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3, dense: float = 12.0, look_init: int = 16):
+                 dead: int = 3, dense: float = 12.0, look_init: int = 16, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -779,6 +788,7 @@ class MHT:
             raise ValueError(f"dense={dense!r} must be >= 0 (0: always start tracks jointly)")
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
         self.dense, self.look_init = float(dense), look_init
+        self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
@@ -857,7 +867,7 @@ class MHT:
         self.called = self.n_seen
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
-            self.cfg, self.counts, self.labels, self.n_labels)
+            self.cfg, self.counts, self.labels, self.n_labels, self.net)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
 

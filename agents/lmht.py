@@ -1,21 +1,25 @@
 """`lmht`: mht's tracker (gating, beam, look-ahead ranking, N-scan pruning, fixed-lag decisions;
 baselines/mht.py) whose candidate scores carry a trained correction (`baselines.mht.Scorer`: one
-small ReLU network shared by every candidate of every parent, over permutation-free features).
+small ReLU network shared by every candidate of every parent, over permutation-free features, its
+output taken relative to the parent's spurious candidate; a track's first pulse keeps mht's score).
 
-Training (`train`, `python -m agents.lmht`, CPU, minutes): per pulse, the candidates of one
-hypothesis (every gated track after its misses, every restart, spurious) get the logits
-base_j + f(x_j), base_j mht's own local logit (its log-likelihood increment plus look-ahead change);
-the loss is the cross-entropy of the true label, marginalised over the candidates carrying a right
-label (two candidates of one source, or a merged pulse's sources).  f starts at 0 (mht exactly), so
-training only moves mht where the data say so.
+Training (`train`; `python -m agents.lmht` reproduces agents/checkpoints/lmht-v1.safetensors
+bit for bit in ~4 min on a shared 2-core CPU): per pulse, the candidates of one hypothesis (every
+gated track after its misses, every restart, spurious) get mht's own local logits base_j (its
+log-likelihood increment plus look-ahead change) plus the learned term, and the loss is the
+cross-entropy of the true label, marginalised over the candidates carrying a right label (two
+candidates of one source, or a merged pulse's sources).  f starts at 0 (mht exactly).  The feature
+range of the first data is stored and inputs are clipped to it (no ReLU extrapolation).
 
 The hypothesis the candidates are read from (the roll-in, `_follow`): at each pulse it takes the
-best-ranked candidate with a right label (behaviour cloning on the truth), or with probability
-`beta` the best-ranked candidate under the current scorer whatever its label (DAgger: states of the
-agent's own mistakes -- a track fed a wrong pulse, a missed restart -- labelled with the truth of the
-pulses that follow; the truth is still well defined there, since labels are anchored to sources).
-A pulse no candidate labels rightly (its source outside every gate) adds no example and is followed
-as spurious or as the best candidate.
+best-ranked candidate with a right label (behaviour cloning on the truth; iteration 0), or with
+probability `beta` the best-ranked candidate under the current scorer whatever its label (DAgger,
+later iterations: states of the agent's own mistakes -- a track fed a wrong pulse -- labelled with
+the truth of the pulses that follow, which stays well defined since labels are anchored to
+sources).  A pulse no candidate labels rightly (its source outside every gate) adds no example.
+The loss is local (one hypothesis's softmax) while the beam compares hypotheses by summed scores;
+the design choices above (the spurious-relative output, no look-ahead feature, first pulses left
+to mht) are where the two disagreed (see the scorer's comment in baselines/mht.py).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ ARCHITECTURE = "mht-scorer"
 
 
 @functools.lru_cache(maxsize=8)
-def _load(path: str, mtime_ns: int, size: int) -> tuple[str, Scorer, dict[str, Any]]:
+def _load(path: str, mtime_ns: int, size: int) -> tuple[str, Scorer, CheckpointMeta]:
     ck = load_checkpoint(path)
     where = f"checkpoint {path}"
     feats = ck.meta.features
@@ -50,7 +54,7 @@ def _load(path: str, mtime_ns: int, size: int) -> tuple[str, Scorer, dict[str, A
     if feats.get("version") != FEATURE_VERSION or tuple(feats.get("names", ())) != FEATURES:
         raise DeintError(f"{where}: feature version {feats.get('version')!r}; this code computes version "
                          f"{FEATURE_VERSION} ({', '.join(FEATURES)})")
-    return ck.key, scorer_from_tensors(ck.tensors, where), dict(ck.meta.hyperparameters)
+    return ck.key, scorer_from_tensors(ck.tensors, where), ck.meta
 
 
 def scorer_from_tensors(tensors: dict[str, Any], where: str) -> Scorer:
@@ -80,8 +84,8 @@ class LMHT(MHT):
             st = path.stat()
         except OSError:
             raise DeintError(f"checkpoint {path} does not exist (train one with `python -m agents.lmht`)") from None
-        key, scorer, hyper = _load(str(path), st.st_mtime_ns, st.st_size)
-        params = dict(hyper.get("mht", {}))
+        key, scorer, self.meta = _load(str(path), st.st_mtime_ns, st.st_size)
+        params = dict(self.meta.hyperparameters.get("mht", {}))
         params.update(kwargs)
         super().__init__(scorer=scorer, **params)
         self.version = f"{key}/lmht-{FEATURE_VERSION}"
@@ -332,7 +336,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, default=150)
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--lr", type=float, default=3e-3)
-    ap.add_argument("--beam", type=int, default=32, help="the agent's beam (mht's parameter)")
+    ap.add_argument("--beam", type=int, default=16, help="the agent's beam (mht's parameter)")
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     names = [n for s in a.suite or ["core-v0", "robust-v0"] for n, _ in select_entries(suite=s)]

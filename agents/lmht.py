@@ -3,8 +3,9 @@ baselines/mht.py) whose candidate scores carry a trained correction (`baselines.
 small ReLU network shared by every candidate of every parent, over permutation-free features, its
 output taken relative to the parent's spurious candidate; a track's first pulse keeps mht's score).
 
-Training (`train`; `python -m agents.lmht` reproduces agents/checkpoints/lmht-v1.safetensors
-bit for bit in ~4 min on a shared 2-core CPU): per pulse, the candidates of one hypothesis (every
+Training (`train`; `deint train --algo lmht`, agents/hyperparams/lmht.yml, or `python -m
+agents.lmht` for several suites at once, which rebuilds agents/checkpoints/lmht-v1.safetensors --
+the same weights -- in ~4 min on a shared 2-core CPU): per pulse, the candidates of one hypothesis (every
 gated track after its misses, every restart, spurious) get mht's own local logits base_j (its
 log-likelihood increment plus look-ahead change) plus the learned term, and the loss is the
 cross-entropy of the true label, marginalised over the candidates carrying a right label (two
@@ -266,10 +267,11 @@ def collect(episodes, scorer: Scorer, beta: float, rng: np.random.Generator, mht
 
 def train(scenarios: list[str], out: str | Path, *, seeds: int = 3, iterations: int = 2, beta: float = 0.3, skip: int = 10,
           epochs: int = 150, hidden: int = 16, lr: float = 3e-3, seed: int = 0, mht_params: dict[str, Any] | None = None,
-          log=print) -> Path:
+          time_budget: float | None = None, log=print) -> Path:
     """BC then DAgger (module doc) on `seeds` train seeds per scenario (a fresh slice per iteration, after
     the split's first `skip` seeds: those stay unseen, for `deint run --split train --max-seeds skip`);
-    full-batch Adam on the aggregated rows.  Writes the checkpoint to `out` after every iteration."""
+    full-batch Adam on the aggregated rows.  Writes the checkpoint to `out` after every iteration; no
+    iteration starts once `time_budget` seconds have passed."""
     import torch
 
     from deint_env import __version__
@@ -285,6 +287,9 @@ def train(scenarios: list[str], out: str | Path, *, seeds: int = 3, iterations: 
     t0 = time.perf_counter()
     steps = 0
     for it in range(iterations):
+        if it and time_budget is not None and time.perf_counter() - t0 > time_budget:
+            log(f"time budget reached after {it} iterations")
+            break
         eps = _episodes(scenarios, "train", seeds, skip + it * seeds)
         b = 0.0 if it == 0 else beta
         data.append(collect(eps, net.numba(), b, rng, mht_params))
@@ -320,6 +325,34 @@ def train(scenarios: list[str], out: str | Path, *, seeds: int = 3, iterations: 
                    "train_seeds": "offsets into each scenario's train split (deint_env.envs.mixed.split_seeds)"})
         save_checkpoint(out, net.tensors(), meta)
     return Path(out)
+
+
+HYPERPARAMS = ("seeds", "skip", "iterations", "beta", "epochs", "hidden", "learning_rate", "beam")
+
+
+def train_config(config, out: Path, hyperparams: tuple[str, dict[str, Any]]):
+    """`deint train --algo lmht` (agents.train): the scorer trained on `config`'s scenarios with the YAML
+    entry `hyperparams` (agents/hyperparams/lmht.yml) into out/last.safetensors."""
+    from agents.config import TrainResult
+    from deint_env.envs.mixed import select_entries
+
+    key, hp = hyperparams
+    unknown = sorted(set(hp) - set(HYPERPARAMS))
+    if unknown:
+        raise DeintError(f"hyper-parameters {key!r}: {unknown[0]!r} is unknown; keys: {', '.join(HYPERPARAMS)}")
+    hp = {**dict(zip(HYPERPARAMS, (3, 10, 2, 0.3, 150, 16, 3e-3, 16))), **hp}
+    entries = select_entries(config.suite, config.scenarios, config.tags)
+    names = [n for n, _ in entries]
+    blind = [n for n, e in entries if e.spec.blind]
+    if blind:
+        raise DeintError(f"lmht trains on anchored scenarios only; {blind[0]} is blind")
+    t0 = time.perf_counter()
+    path = train(names, out / "last.safetensors", seeds=int(hp["seeds"]), iterations=int(hp["iterations"]),
+                 beta=float(hp["beta"]), skip=int(hp["skip"]), epochs=int(hp["epochs"]), hidden=int(hp["hidden"]),
+                 lr=float(hp["learning_rate"]), seed=config.seed, mht_params={"beam": int(hp["beam"])},
+                 time_budget=config.time_budget, log=print if config.progress else (lambda _: None))
+    return TrainResult(last=path, best=None, timesteps=load_checkpoint(path).meta.timesteps,
+                       seconds=time.perf_counter() - t0)
 
 
 def main(argv: list[str] | None = None) -> int:

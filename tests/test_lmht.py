@@ -113,3 +113,18 @@ def test_lmht_labels_an_outside_pulse_file(tmp_path, n):
                  "-o", str(tmp_path / "l.csv")]) == 0
     labels = np.loadtxt(tmp_path / "l.csv", delimiter=",", skiprows=1, usecols=1).astype(int)
     assert labels.shape == src.shape and np.mean(labels == src) > 0.95
+
+
+def test_deint_train_algo_lmht(tmp_path, capsys):
+    """`deint train --algo lmht` with a tiny YAML: a checkpoint the policy spec plays."""
+    from deint_env.cli import main
+
+    (tmp_path / "hp.yml").write_text("default:\n  seeds: 1\n  iterations: 1\n  epochs: 2\n  hidden: 4\n  beam: 4\n")
+    assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
+                 str(tmp_path / "hp.yml"), "-o", str(tmp_path / "run"), "--no-progress"]) == 0
+    agent = LMHT(checkpoint=str(tmp_path / "run" / "last.safetensors"))
+    assert agent.beam == 4 and agent.meta.timesteps == 2 and agent.meta.train_seeds == [10, 11]
+    (tmp_path / "bad.yml").write_text("default:\n  sedes: 1\n")
+    assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
+                 str(tmp_path / "bad.yml"), "-o", str(tmp_path / "run2"), "--no-progress"]) != 0
+    assert "'sedes' is unknown" in capsys.readouterr().err

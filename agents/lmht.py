@@ -207,7 +207,8 @@ class TorchScorer:
         return (x @ self.w1 + self.b1).relu() @ self.w2 + self.b2
 
     def tensors(self) -> dict[str, Any]:
-        return {"lo": self.lo.clone(), "hi": self.hi.clone(), "w1": self.w1.detach().clone(), "b1": self.b1.detach().clone(), "w2": self.w2.detach().clone(),
+        return {"lo": self.lo.clone(), "hi": self.hi.clone(), "w1": self.w1.detach().clone(),
+                "b1": self.b1.detach().clone(), "w2": self.w2.detach().clone(),
                 "b2": self.b2.detach().clone()}
 
     def numba(self) -> Scorer:
@@ -265,9 +266,9 @@ def collect(episodes, scorer: Scorer, beta: float, rng: np.random.Generator, mht
             torch.from_numpy(np.concatenate(group)), offset)
 
 
-def train(scenarios: list[str], out: str | Path, *, seeds: int = 3, iterations: int = 2, beta: float = 0.3, skip: int = 10,
-          epochs: int = 150, hidden: int = 16, lr: float = 3e-3, seed: int = 0, mht_params: dict[str, Any] | None = None,
-          time_budget: float | None = None, log=print) -> Path:
+def train(scenarios: list[str], out: str | Path, *, seeds: int = 3, iterations: int = 2, beta: float = 0.3,
+          skip: int = 10, epochs: int = 150, hidden: int = 16, lr: float = 3e-3, seed: int = 0,
+          mht_params: dict[str, Any] | None = None, time_budget: float | None = None, log=print) -> Path:
     """BC then DAgger (module doc) on `seeds` train seeds per scenario (a fresh slice per iteration, after
     the split's first `skip` seeds: those stay unseen, for `deint run --split train --max-seeds skip`);
     full-batch Adam on the aggregated rows.  Writes the checkpoint to `out` after every iteration; no

@@ -138,11 +138,16 @@ class AgentPolicy:
 
 def agent(checkpoint: str, deterministic: bool = True) -> Any:
     """`agent:checkpoint=PATH`: the agent of any deint checkpoint, rebuilt as its architecture says
-    (the sequence labeller's by `agents.sequence.SequencePolicy`, which is always deterministic)."""
+    (the sequence labeller's by `agents.sequence.SequencePolicy`, an mht scorer's by `agents.lmht.LMHT`;
+    both always deterministic)."""
+    from agents import lmht
     from agents.sequence import ARCHITECTURE, SequencePolicy
 
-    if load_checkpoint(checkpoint).meta.architecture.get("name") == ARCHITECTURE:
+    name = load_checkpoint(checkpoint).meta.architecture.get("name")
+    if name == ARCHITECTURE:
         return SequencePolicy(checkpoint)
+    if name == lmht.ARCHITECTURE:
+        return lmht.LMHT(checkpoint)
     return AgentPolicy(checkpoint, deterministic)
 
 

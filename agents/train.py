@@ -43,7 +43,7 @@ from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.errors import DeintError
 from deint_env.suites import load_suite
 
-ALGOS = ("ppo", "maskable-ppo", "recurrent-ppo", "a2c", "dqn", "dagger", "bc", "seq")
+ALGOS = ("ppo", "maskable-ppo", "recurrent-ppo", "a2c", "dqn", "dagger", "bc", "seq", "lmht")
 IMITATION = ("dagger", "bc")  # agents.imitation; their YAML is dagger.yml
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
@@ -235,6 +235,11 @@ def train(config: TrainConfig) -> TrainResult:
         keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
         return train_seq_phases(config, _check_out(Path(config.out), config.into_package),
                                 load_hyperparams("seq", keys, config.hyperparams_file))
+    if config.algo == "lmht":  # mht's learned scorer: its own loop (agents.lmht)
+        from agents.lmht import train_config
+        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
+        return train_config(config, _check_out(Path(config.out), config.into_package),
+                            load_hyperparams("lmht", keys, config.hyperparams_file))
     run = _Run(config)
     if config.algo in IMITATION:
         from agents.experts import make_expert

@@ -126,8 +126,9 @@ class Beam(NamedTuple):
 
 
 class Scratch(NamedTuple):
-    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead),
-    the look-ahead cache per source (last pulse, steps, value; `used` entries) and the search stack."""
+    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead,
+    the learned scorer's features), the look-ahead cache per source (last pulse, steps, value; `used`
+    entries) and the search stack."""
 
     parent: np.ndarray
     source: np.ndarray
@@ -137,6 +138,7 @@ class Scratch(NamedTuple):
     e: np.ndarray
     s: np.ndarray
     h: np.ndarray
+    feat: np.ndarray
     cache_last: np.ndarray
     cache_steps: np.ndarray
     cache_val: np.ndarray
@@ -147,8 +149,9 @@ class Scratch(NamedTuple):
     def empty(cls, candidates: int, n: int, look: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((n, _CACHE), np.int64), np.zeros((n, _CACHE)),
-                   np.zeros((n, _CACHE)), np.zeros(n, np.int64), np.zeros((look * (_BRANCH + 1) + 2, 8)))
+                   np.zeros(c), np.zeros(c), np.zeros((c, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
+                   np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
+                   np.zeros((look * (_BRANCH + 1) + 2, 8)))
 
 
 class Settings(NamedTuple):
@@ -173,6 +176,140 @@ class Settings(NamedTuple):
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
     initiate: bool  # joint track initiation on the buffered start (`_initiate`)
     look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
+
+
+# ---------------------------------------------------------------------------------------------------
+# the learned scorer (the `lmht` agent, agents/lmht.py).  Kept in this file: numba caches a kernel
+# keyed on its own file's content, with its callees compiled in, so a callee in another file could
+# change without `_step`'s cache noticing.
+# ---------------------------------------------------------------------------------------------------
+# Per pulse and parent hypothesis, `_step` lists the candidates: track i after m misses, track i
+# restarting, spurious.  Their hand-written log-likelihood increments plus look-ahead change,
+# base_j = rank_j - (score_b + ahead_b), are the logits of mht's local choice.  `_learned` adds a
+# learned f(x_j) - f(x_spurious) to every candidate's score (so to its rank too; the spurious
+# candidate's stays mht's).  The difference matters: a local softmax is blind to a term shared by a
+# parent's candidates, so the part of f constant over them is not learned -- yet it would shift that
+# parent's score against the other parents' (features 12-13 differ between hypotheses).  f is one
+# small ReLU network shared by all candidates of every kind, over the per-candidate features x_j below
+# (no source index among them: the scorer is permutation-equivariant over tracks, the spurious
+# candidate flagged by a kind bit and described by scene features).  An "off" scorer (`Scorer.off()`,
+# w1 with no rows) is never called, so mht's labels stay bit-identical.
+#
+# Features (FEATURES, version FEATURE_VERSION; scaled to O(1)):
+#   0-2  kind: a hit, a restart, spurious
+#   3    |z|, z = e / sqrt(S) (hit: the normalised innovation).  Not its sign: along the true labelling a
+#        pulse before a track's predicted arrival is more often another source's (the track's own is
+#        still to come) -- a bias that holds only on the right hypothesis, and that the beam's wrong
+#        ones (a track that has let its pulse pass) would exploit
+#   4    z^2 / 4
+#   5    log(sqrt(S) / T) / 5 (hit: the prediction's spread relative to the period)
+#   6    log(1 + m): m misses before a hit, or the arrivals silent before a restart
+#   7    log(1 + arrivals) / 3 of the track so far
+#   8    (base_j - base_spurious) / 10, clipped to +-3 (mht's own log-likelihood ratio to spurious)
+#   9    log(sqrt(P_TT) / T) / 5, the track's period uncertainty
+#   10   log q / 5, the miss probability in use
+#   11   log r / 5, the spurious rate per source pulse in use
+#   12   the number of track candidates of this parent / 4
+#   13   (max_j base_j - base_spurious) / 10, clipped to +-3: how well the pulse is explained at all
+#   14   log(N) / 2, N the sources
+# Not the look-ahead change h' - h on its own: given it, the local loss learns to cancel ~40 % of it
+# (the look-ahead's pulses are counted again when taken), which is right for one hypothesis and
+# wrong for the beam, where the look-ahead is what keeps two tracks from swapping at their start.
+# For the same reason a track's first pulse keeps mht's score: which of two tracks of like periods
+# starts on which pulse train is a whole-hypothesis choice the local loss does not see (trained
+# there, the scorer swapped two such tracks of an 8-source pulse file of tests/test_lmht.py: accuracy
+# 0.68, mht 0.99).
+
+FEATURES = ("hit", "restart", "spurious", "abs_z", "z2", "log_spread", "log_misses", "log_arrivals", "llr_spurious",
+            "log_period_std", "log_q", "log_r", "candidates", "best_llr", "log_sources")
+N_FEATURES = len(FEATURES)
+FEATURE_VERSION = 1
+
+
+class Scorer(NamedTuple):
+    """f(x) = w2 . relu(clip(x, lo, hi) W1 + b1) + b2 (W1: (N_FEATURES, H), b1: (H,), w2: (H,), b2: (1,);
+    lo, hi: (N_FEATURES,), the range of the training features: a scene unlike them (a jitter far
+    smaller than any trained on) is scored as the nearest trained one, not by a ReLU's extrapolation)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    w1: np.ndarray
+    b1: np.ndarray
+    w2: np.ndarray
+    b2: np.ndarray
+
+    @classmethod
+    def off(cls) -> Scorer:
+        return cls(np.zeros(N_FEATURES), np.zeros(N_FEATURES), np.zeros((0, N_FEATURES)), np.zeros(0), np.zeros(0),
+                   np.zeros(1))
+
+
+@njit(cache=True, nogil=True)
+def mlp(net, x, acc):
+    """f(x) for one feature row (acc: (H,) work array)."""
+    acc[:] = net.b1
+    for f in range(x.shape[0]):
+        v = min(max(x[f], net.lo[f]), net.hi[f])
+        for u in range(acc.shape[0]):
+            acc[u] += v * net.w1[f, u]
+    out = net.b2[0]
+    for u in range(acc.shape[0]):
+        if acc[u] > 0.0:
+            out += acc[u] * net.w2[u]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _clip3(v):
+    return min(3.0, max(-3.0, v))
+
+
+@njit(cache=True, nogil=True)
+def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_rate):
+    """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat,
+    and f(x_j) - f(x_spurious) added to their scores and ranks.  score, ahead: the parent's; arrivals,
+    blk: its tracks'."""
+    n = arrivals.shape[0]
+    base_sp = w.rank[hi - 1] - score - ahead
+    best = base_sp
+    for j in range(lo, hi - 1):
+        best = max(best, w.rank[j] - score - ahead)
+    log_r = log_rho - math.log(pulse_rate)
+    for j in range(lo, hi):
+        x = w.feat[j]
+        x[:] = 0.0
+        i = w.source[j]
+        base = w.rank[j] - score - ahead
+        if i < 0:
+            x[2] = 1.0
+        else:
+            t = blk[i, 0]
+            if w.steps[j] < 0:  # a restart after -steps silent arrivals
+                x[1] = 1.0
+                x[6] = math.log1p(-w.steps[j])
+            else:
+                x[0] = 1.0
+                z = w.e[j] / math.sqrt(w.s[j])
+                x[3] = abs(z)
+                x[4] = 0.25 * z * z
+                x[5] = 0.1 * math.log(w.s[j] / (t * t))
+                x[6] = math.log(w.steps[j])
+            x[7] = math.log1p(arrivals[i]) / 3.0
+            x[8] = _clip3(0.1 * (base - base_sp))
+            x[9] = 0.1 * math.log(max(blk[i, 2], 1e-300) / (t * t))
+        x[10] = 0.2 * log_q
+        x[11] = 0.2 * log_r
+        x[12] = 0.25 * (hi - 1 - lo)
+        x[13] = _clip3(0.1 * (best - base_sp))
+        x[14] = 0.5 * math.log(n)
+    acc = np.empty(net.b1.shape[0])
+    f_sp = mlp(net, w.feat[hi - 1], acc)
+    for j in range(lo, hi - 1):
+        if arrivals[w.source[j]] == 0:  # a track's first pulse: mht's own score (module comment above)
+            continue
+        f = mlp(net, w.feat[j], acc) - f_sp
+        w.score[j] += f
+        w.rank[j] += f
 
 
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
@@ -565,10 +702,11 @@ def _restart_period(t, ptt, prior_t, prior_tt):
 
 
 @njit(cache=True, nogil=True)
-def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w):
+def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
-    track has no good continuation loses at once instead of a period later."""
+    track has no good continuation loses at once instead of a period later.  A learned scorer `net`
+    (`Scorer`; none: w1 has no rows) corrects every candidate's score."""
     y = toa[k]
     n = c.blk.shape[1]
     ring = c.label.shape[1]
@@ -576,6 +714,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
     w.used[:] = 0
     nc = 0
     for b in range(size):
+        first = nc
         for i in range(n):
             t = c.blk[b, i, PERIOD]
             tau = c.blk[b, i, TAU]
@@ -658,6 +797,8 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         w.score[nc] = c.score[b] + log_rho
         w.rank[nc] = w.score[nc] + c.ahead[b]
         nc += 1
+        if net.w1.shape[0] > 0:
+            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], log_q, log_rho, cfg.pulse_rate)
     order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
     slot = k % ring
     mask = zob.shape[1] - 1
@@ -772,7 +913,7 @@ def _rates(cfg, counts):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels, net):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
@@ -799,7 +940,7 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w)
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w, net)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:
@@ -845,11 +986,12 @@ class MHT:
     pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
     beam's own start is as good; 0: whenever the phases are known), `look_init`
     (the joint start buffers this many periods of the longest source; each pulse chain it judges has
-    at least this many arrivals and covers the buffered start)."""
+    at least this many arrivals and covers the buffered start).  `scorer`: a learned correction of the
+    candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3, dense: float = 12.0, look_init: int = 16):
+                 dead: int = 3, dense: float = 12.0, look_init: int = 16, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -869,6 +1011,7 @@ class MHT:
             raise ValueError(f"dense={dense!r} must be >= 0 (0: always start tracks jointly)")
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
         self.dense, self.look_init = float(dense), look_init
+        self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if priors.blind:
@@ -959,8 +1102,8 @@ class MHT:
                 end = min(cfg.reserve + 1, int(np.searchsorted(self.toa[:self.n_seen], y0 + ahead, side="right")))
                 self._vet(end)
         self.k, self.size, swapped, self.n_labels = _run(
-            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior, self.scratch,
-            self.cfg, self.counts, self.labels, self.n_labels)
+            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
+            self.scratch, self.cfg, self.counts, self.labels, self.n_labels, self.net)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
 

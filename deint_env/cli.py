@@ -566,7 +566,8 @@ def _add_train(sub) -> None:
     p.add_argument("--tags", default="", help="only scenarios with all these tags (comma-separated)")
     p.add_argument("--algo", default="maskable-ppo",
                    help="maskable-ppo (default), ppo, recurrent-ppo (LSTM memory), a2c, dqn, dagger, bc (behaviour "
-                        "cloning) or seq (the supervised pointer sequence labeller, blind scenarios)")
+                        "cloning), seq (the supervised pointer sequence labeller, blind scenarios) or lmht (mht's "
+                        "learned scorer)")
     p.add_argument("--expert", default="truth",
                    help="dagger / bc: imitate 'truth' (default) or a reference policy spec (e.g. mht, fdp, genie)")
     p.add_argument("--timesteps", type=int, default=None, help="total steps (default: the YAML's n_timesteps)")

@@ -1,0 +1,130 @@
+"""`lmht` (agents/lmht.py, the scorer in baselines/mht.py): the numba scorer against the torch one, a zero
+scorer against mht, the training rows against the truth, a checkpoint's round trip, and the checked-in
+agent on pulse files from an independent generator through `deint label`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from agents.lmht import LMHT, TorchScorer, candidates, group_loss, train  # noqa: E402
+from baselines.mht import MHT  # noqa: E402
+from baselines.mht import N_FEATURES, mlp  # noqa: E402
+from deint_env.errors import DeintError  # noqa: E402
+from deint_env.runner import play  # noqa: E402
+from deint_env.simulate import simulate  # noqa: E402
+from deint_env.suites import find_entry  # noqa: E402
+
+
+def _random_scorer(seed: int, hidden: int = 8) -> TorchScorer:
+    net = TorchScorer(hidden, seed)
+    g = torch.Generator().manual_seed(seed + 1)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.copy_(torch.randn(p.shape, generator=g, dtype=p.dtype))
+    return net
+
+
+def test_numba_scorer_equals_torch_scorer():
+    """Random weights and features, some outside the feature range (clipped by both)."""
+    net = _random_scorer(3)
+    x = np.random.default_rng(0).normal(0.0, 2.0, (200, N_FEATURES))
+    net.fit_range(torch.from_numpy(x[:50]))
+    want = net(torch.from_numpy(x)).detach().numpy()
+    fast = net.numba()
+    got = np.array([mlp(fast, row, np.empty(8)) for row in x])
+    assert np.any(want != want[0])  # the ReLUs do not all sit on one side
+    assert np.any((x[50:] < fast.lo) | (x[50:] > fast.hi))
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_a_zero_scorer_is_mht_and_a_random_one_is_not():
+    """f = 0 adds exactly 0.0 to every score: mht's labels; a random f changes them (the hook is live)."""
+    episode = simulate(find_entry("core-v0/core-n6-spread1.5-jitter0.5").spec.replace(n_pulses=300), 4)
+    zero = TorchScorer(4, 0).numba()
+    ref = play(MHT(), episode, clustering=False).labels
+    assert np.array_equal(play(MHT(scorer=zero), episode, clustering=False).labels, ref)
+    assert not np.array_equal(play(MHT(scorer=_random_scorer(5).numba()), episode, clustering=False).labels, ref)
+
+
+def test_training_rows_follow_the_truth():
+    """Behaviour-cloning rows: one group per pulse with a right candidate, whose right label matches the
+    truth; mht's logits already put most of the mass on it (a small loss), and the spurious candidate
+    is in every group."""
+    episode = simulate(find_entry("robust-v0/robust-combined").spec.replace(n_pulses=200), 1)
+    zero = TorchScorer(4, 0).numba()
+    feat, base, right, group = candidates(episode, zero, 0.0, np.random.default_rng(0))
+    assert feat.shape == (base.size, N_FEATURES) and np.all(np.diff(group) >= 0)
+    pulses = np.unique(group)
+    assert pulses.size > 0.95 * len(episode)
+    for k in pulses[:50]:
+        rows = group == k
+        assert feat[rows, 2].sum() == 1  # one spurious candidate
+        assert right[rows].any()
+    _, inv = np.unique(group, return_inverse=True)
+    loss = float(group_loss(torch.from_numpy(base), torch.from_numpy(right.astype(float)), torch.from_numpy(inv),
+                            pulses.size))
+    assert 0.0 < loss < 0.3
+
+
+def test_a_trained_checkpoint_round_trips(tmp_path):
+    out = train(["core-v0/core-n3-spread4-jitter0.2"], tmp_path / "s.safetensors", seeds=1, iterations=2, epochs=3,
+                hidden=4, log=lambda _: None)
+    agent = LMHT(checkpoint=str(out), beam=4)
+    assert agent.beam == 4 and agent.net.w1.shape == (N_FEATURES, 4) and np.all(agent.net.lo <= agent.net.hi)
+    assert np.any(agent.net.w2 != 0)  # trained: f is no longer 0
+    again = LMHT(checkpoint=str(out), beam=4)
+    assert agent.version == again.version and agent.version.startswith("sha256:")
+    for a, b in zip(agent.net, again.net):
+        assert np.array_equal(a, b)
+    (tmp_path / "bad.safetensors").write_bytes(b"\x80\x04junk")
+    with pytest.raises(DeintError, match="never unpickled"):
+        LMHT(checkpoint=str(tmp_path / "bad.safetensors"))
+
+
+def _independent_pulses(n: int, rng: np.random.Generator, n_pulses: int = 300):
+    """Periodic trains with Gaussian TOA jitter, made here (not by deint_env's simulator)."""
+    period = 10.0 * 4.0 ** rng.random(n)
+    phase = rng.random(n) * period
+    jitter = 0.002 * period.min()
+    toa, src = [], []
+    for s in range(n):
+        k = np.arange(int(n_pulses * 1.2 * period.min() / period[s]) + 2)
+        toa.append(phase[s] + k * period[s] + rng.normal(0.0, jitter, k.size))
+        src.append(np.full(k.size, s))
+    toa, src = np.concatenate(toa), np.concatenate(src)
+    order = np.argsort(toa, kind="stable")[:n_pulses]
+    return toa[order], src[order], {"period": period.tolist(), "phase": phase.tolist(), "jitter_std": jitter,
+                                    "spurious_rate": 0.0, "missing_prob": 0.0}
+
+
+@pytest.mark.parametrize("n", [2, 3, 8])
+def test_lmht_labels_an_outside_pulse_file(tmp_path, n):
+    from deint_env.cli import main
+
+    toa, src, priors = _independent_pulses(n, np.random.default_rng(n))
+    (tmp_path / "p.csv").write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
+    (tmp_path / "pr.json").write_text(json.dumps(priors))
+    assert main(["label", str(tmp_path / "p.csv"), "--policy", "lmht", "--priors", str(tmp_path / "pr.json"),
+                 "-o", str(tmp_path / "l.csv")]) == 0
+    labels = np.loadtxt(tmp_path / "l.csv", delimiter=",", skiprows=1, usecols=1).astype(int)
+    assert labels.shape == src.shape and np.mean(labels == src) > 0.95
+
+
+def test_deint_train_algo_lmht(tmp_path, capsys):
+    """`deint train --algo lmht` with a tiny YAML: a checkpoint the policy spec plays."""
+    from deint_env.cli import main
+
+    (tmp_path / "hp.yml").write_text("default:\n  seeds: 1\n  iterations: 1\n  epochs: 2\n  hidden: 4\n  beam: 4\n")
+    assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
+                 str(tmp_path / "hp.yml"), "-o", str(tmp_path / "run"), "--no-progress"]) == 0
+    agent = LMHT(checkpoint=str(tmp_path / "run" / "last.safetensors"))
+    assert agent.beam == 4 and agent.meta.timesteps == 2 and agent.meta.train_seeds == [10, 11]
+    (tmp_path / "bad.yml").write_text("default:\n  sedes: 1\n")
+    assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
+                 str(tmp_path / "bad.yml"), "-o", str(tmp_path / "run2"), "--no-progress"]) != 0
+    assert "'sedes' is unknown" in capsys.readouterr().err

@@ -120,8 +120,9 @@ def _independent_pulses(n: int, rng: np.random.Generator, n_pulses: int = 300):
                                     "spurious_rate": 0.0, "missing_prob": 0.0}
 
 
+@pytest.mark.parametrize("policy", ["dagger-beam", "lmht"])
 @pytest.mark.parametrize("n", [2, 3, 8])
-def test_zoo_agent_labels_an_outside_pulse_file(tmp_path, n):
+def test_zoo_agent_labels_an_outside_pulse_file(tmp_path, n, policy):
     import json
 
     from deint_env.cli import main
@@ -129,7 +130,7 @@ def test_zoo_agent_labels_an_outside_pulse_file(tmp_path, n):
     toa, src, priors = _independent_pulses(n, np.random.default_rng(n))
     (tmp_path / "p.csv").write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
     (tmp_path / "pr.json").write_text(json.dumps(priors))
-    assert main(["label", str(tmp_path / "p.csv"), "--policy", "dagger-beam", "--priors", str(tmp_path / "pr.json"),
+    assert main(["label", str(tmp_path / "p.csv"), "--policy", policy, "--priors", str(tmp_path / "pr.json"),
                  "-o", str(tmp_path / "l.csv")]) == 0
     labels = np.loadtxt(tmp_path / "l.csv", delimiter=",", skiprows=1, usecols=1).astype(int)
     assert labels.shape == src.shape and np.mean(labels == src) > 0.95

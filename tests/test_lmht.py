@@ -1,10 +1,8 @@
 """`lmht` (agents/lmht.py, the scorer in baselines/mht.py): the numba scorer against the torch one, a zero
-scorer against mht, the training rows against the truth, a checkpoint's round trip, and the checked-in
-agent on pulse files from an independent generator through `deint label`."""
+scorer against mht, the training rows against the truth and a checkpoint's round trip (the checked-in
+agent on pulse files from an independent generator through `deint label`: tests/test_agents_beam.py)."""
 
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
@@ -84,35 +82,6 @@ def test_a_trained_checkpoint_round_trips(tmp_path):
     (tmp_path / "bad.safetensors").write_bytes(b"\x80\x04junk")
     with pytest.raises(DeintError, match="never unpickled"):
         LMHT(checkpoint=str(tmp_path / "bad.safetensors"))
-
-
-def _independent_pulses(n: int, rng: np.random.Generator, n_pulses: int = 300):
-    """Periodic trains with Gaussian TOA jitter, made here (not by deint_env's simulator)."""
-    period = 10.0 * 4.0 ** rng.random(n)
-    phase = rng.random(n) * period
-    jitter = 0.002 * period.min()
-    toa, src = [], []
-    for s in range(n):
-        k = np.arange(int(n_pulses * 1.2 * period.min() / period[s]) + 2)
-        toa.append(phase[s] + k * period[s] + rng.normal(0.0, jitter, k.size))
-        src.append(np.full(k.size, s))
-    toa, src = np.concatenate(toa), np.concatenate(src)
-    order = np.argsort(toa, kind="stable")[:n_pulses]
-    return toa[order], src[order], {"period": period.tolist(), "phase": phase.tolist(), "jitter_std": jitter,
-                                    "spurious_rate": 0.0, "missing_prob": 0.0}
-
-
-@pytest.mark.parametrize("n", [2, 3, 8])
-def test_lmht_labels_an_outside_pulse_file(tmp_path, n):
-    from deint_env.cli import main
-
-    toa, src, priors = _independent_pulses(n, np.random.default_rng(n))
-    (tmp_path / "p.csv").write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
-    (tmp_path / "pr.json").write_text(json.dumps(priors))
-    assert main(["label", str(tmp_path / "p.csv"), "--policy", "lmht", "--priors", str(tmp_path / "pr.json"),
-                 "-o", str(tmp_path / "l.csv")]) == 0
-    labels = np.loadtxt(tmp_path / "l.csv", delimiter=",", skiprows=1, usecols=1).astype(int)
-    assert labels.shape == src.shape and np.mean(labels == src) > 0.95
 
 
 def test_deint_train_algo_lmht(tmp_path, capsys):

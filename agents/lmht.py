@@ -363,7 +363,9 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m agents.lmht", description="train the lmht scorer (module doc)")
     ap.add_argument("--suite", action="append", default=[], help="train on every scenario of this suite (repeatable)")
-    ap.add_argument("--out", default=str(CHECKPOINT))
+    ap.add_argument("--out", default="runs/train/lmht/lmht.safetensors",
+                    help=f"the checkpoint to write (the zoo's is {CHECKPOINT.relative_to(CHECKPOINT.parents[2])}: "
+                         "name it to rebuild it)")
     ap.add_argument("--seeds", type=int, default=3, help="train seeds per scenario and iteration")
     ap.add_argument("--iterations", type=int, default=2)
     ap.add_argument("--beta", type=float, default=0.3, help="DAgger: the agent's own choice this often")

@@ -38,6 +38,7 @@ from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
 from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, _count, _initiate, _rates, _step,
                            mlp)
 from deint_env.errors import DeintError
+from deint_env.labels import correct_anchored
 
 CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "lmht-v1.safetensors"
 LAYOUT = "mht-candidates"
@@ -154,13 +155,10 @@ def _follow(toa, ok, cur, nxt, zob, prior, w, cfg, net, counts, u, beta, feat, b
 
 
 def right_labels(episode) -> np.ndarray:
-    """(pulses, N + 1) bool: which labels are right for each pulse (deint_env.labels.correct_anchored)."""
+    """(pulses, N + 1) bool: which labels are right for each pulse (the N tracks and spurious)."""
     n = episode.n_labels
-    ok = np.zeros((len(episode), n + 1), np.bool_)
-    for i in range(min(n, 64)):
-        ok[:, i] = (np.right_shift(episode.mask, np.uint64(i)) & np.uint64(1)).astype(bool)
-    ok[:, n] = episode.source < 0
-    return ok
+    return np.stack([correct_anchored(np.full(len(episode), lab), episode.source, episode.mask, n)
+                     for lab in range(n + 1)], axis=1)
 
 
 def candidates(episode, scorer: Scorer, beta: float, rng: np.random.Generator, **mht_params: Any):

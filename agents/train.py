@@ -109,6 +109,11 @@ def _versions() -> dict[str, str]:
             "numpy": np.__version__}
 
 
+def _hyperparam_keys(config: TrainConfig) -> list[str]:
+    """The YAML keys to look up, most specific first: the one scenario trained on, then the suite."""
+    return ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
+
+
 def evaluate_greedy(policy, env_kwargs: dict[str, Any], episodes: int, seed: int = 0) -> float:
     """Mean episode accuracy of `policy` (greedy, masked) over `episodes` validation episodes (a
     recurrent policy carries its LSTM state, reset when an episode ends)."""
@@ -165,8 +170,7 @@ class _Run:
         self.train_ranges = sorted({(r.start, r.stop) for _, e in entries for r in [split_seeds(e, "train")]})
         self.max_labels = max(e.spec.n_labels for _, e in entries)
         self.blind = any(e.spec.blind for _, e in entries)
-        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
-        self.hp_key, hp = load_hyperparams(config.algo, keys, config.hyperparams_file)
+        self.hp_key, hp = load_hyperparams(config.algo, _hyperparam_keys(config), config.hyperparams_file)
         self.n_envs = int(config.n_envs or hp.get("n_envs", 8))
         self.timesteps = int(config.timesteps or float(hp.get("n_timesteps", 1e6)))
         self.max_tracks = int(hp.get("max_tracks", 8))
@@ -232,14 +236,12 @@ def train(config: TrainConfig) -> TrainResult:
         raise DeintError(f"--expert applies to {' and '.join(IMITATION)}, not to --algo {config.algo}")
     if config.algo == "seq":  # the supervised pointer labeller: its own loop, no SB3 model (agents.sequence)
         from agents.sequence import train_seq_phases
-        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
         return train_seq_phases(config, _check_out(Path(config.out), config.into_package),
-                                load_hyperparams("seq", keys, config.hyperparams_file))
+                                load_hyperparams("seq", _hyperparam_keys(config), config.hyperparams_file))
     if config.algo == "lmht":  # mht's learned scorer: its own loop (agents.lmht)
         from agents.lmht import train_config
-        keys = ([config.scenarios[0]] if len(config.scenarios) == 1 else []) + ([config.suite] if config.suite else [])
         return train_config(config, _check_out(Path(config.out), config.into_package),
-                            load_hyperparams("lmht", keys, config.hyperparams_file))
+                            load_hyperparams("lmht", _hyperparam_keys(config), config.hyperparams_file))
     run = _Run(config)
     if config.algo in IMITATION:
         from agents.experts import make_expert

@@ -79,6 +79,7 @@ form (`.py_func`) gives identical labels (tested), ~100x slower.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -128,7 +129,7 @@ class Beam(NamedTuple):
 class Scratch(NamedTuple):
     """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead,
     the learned scorer's features), the look-ahead cache per source (last pulse, steps, value; `used`
-    entries) and the search stack."""
+    entries), the search stack and the scorer's hidden layer (a parent's part, a candidate's)."""
 
     parent: np.ndarray
     source: np.ndarray
@@ -144,14 +145,15 @@ class Scratch(NamedTuple):
     cache_val: np.ndarray
     used: np.ndarray
     stack: np.ndarray
+    hidden: np.ndarray
 
     @classmethod
-    def empty(cls, candidates: int, n: int, look: int) -> Scratch:
+    def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
                    np.zeros(c), np.zeros(c), np.zeros((c, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
-                   np.zeros((look * (_BRANCH + 1) + 2, 8)))
+                   np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((2, hidden)))
 
 
 class Settings(NamedTuple):
@@ -176,6 +178,7 @@ class Settings(NamedTuple):
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
     initiate: bool  # joint track initiation on the buffered start (`_initiate`)
     look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
+    margin: float  # children ranked more than this (nats) below the best are dropped (inf: the beam only)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -224,6 +227,9 @@ FEATURES = ("hit", "restart", "spurious", "abs_z", "z2", "log_spread", "log_miss
             "log_period_std", "log_q", "log_r", "candidates", "best_llr", "log_sources")
 N_FEATURES = len(FEATURES)
 FEATURE_VERSION = 1
+# the features equal for every candidate of one parent (their hidden-layer terms are summed once per parent)
+_SHARED = tuple(FEATURES.index(f) for f in ("log_q", "log_r", "candidates", "best_llr", "log_sources"))
+_OWN = tuple(f for f in range(N_FEATURES) if f not in _SHARED)
 
 
 class Scorer(NamedTuple):
@@ -265,25 +271,53 @@ def _clip3(v):
 
 
 @njit(cache=True, nogil=True)
+def _hidden_of(net, x, features, acc):
+    """acc += the first layer's terms of `features` (indices) of the row x, clipped as `mlp` clips."""
+    for f in features:
+        v = min(max(x[f], net.lo[f]), net.hi[f])
+        if v != 0.0:  # most rows are sparse: a candidate has one kind bit, spurious no track features
+            for u in range(acc.shape[0]):
+                acc[u] += v * net.w1[f, u]
+
+
+@njit(cache=True, nogil=True)
+def _output(net, acc):
+    out = net.b2[0]
+    for u in range(acc.shape[0]):
+        if acc[u] > 0.0:
+            out += acc[u] * net.w2[u]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_rate):
     """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat,
     and f(x_j) - f(x_spurious) added to their scores and ranks.  score, ahead: the parent's; arrivals,
-    blk: its tracks'."""
+    blk: its tracks'.  f is `mlp`, its first layer split: the features shared by the parent's
+    candidates (_SHARED) once per parent, a candidate's own (_OWN) per candidate."""
     n = arrivals.shape[0]
     base_sp = w.rank[hi - 1] - score - ahead
     best = base_sp
     for j in range(lo, hi - 1):
         best = max(best, w.rank[j] - score - ahead)
-    log_r = log_rho - math.log(pulse_rate)
+    # the parent's shared features (cheap first: this runs for every candidate of every parent)
+    x_q, x_r = 0.2 * log_q, 0.2 * (log_rho - math.log(pulse_rate))
+    x_c, x_b, x_n = 0.25 * (hi - 1 - lo), _clip3(0.1 * (best - base_sp)), 0.5 * math.log(n)
+    prev = -1  # a track's candidates are consecutive: its own features are computed once
+    x_a = x_p = log_t2 = 0.0
     for j in range(lo, hi):
         x = w.feat[j]
         x[:] = 0.0
         i = w.source[j]
-        base = w.rank[j] - score - ahead
         if i < 0:
             x[2] = 1.0
         else:
-            t = blk[i, 0]
+            if i != prev:
+                prev = i
+                t = blk[i, 0]
+                log_t2 = 2.0 * math.log(t)
+                x_a = math.log1p(arrivals[i]) / 3.0
+                x_p = 0.1 * (math.log(max(blk[i, 2], 1e-300)) - log_t2)
             if w.steps[j] < 0:  # a restart after -steps silent arrivals
                 x[1] = 1.0
                 x[6] = math.log1p(-w.steps[j])
@@ -292,22 +326,29 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_
                 z = w.e[j] / math.sqrt(w.s[j])
                 x[3] = abs(z)
                 x[4] = 0.25 * z * z
-                x[5] = 0.1 * math.log(w.s[j] / (t * t))
-                x[6] = math.log(w.steps[j])
-            x[7] = math.log1p(arrivals[i]) / 3.0
-            x[8] = _clip3(0.1 * (base - base_sp))
-            x[9] = 0.1 * math.log(max(blk[i, 2], 1e-300) / (t * t))
-        x[10] = 0.2 * log_q
-        x[11] = 0.2 * log_r
-        x[12] = 0.25 * (hi - 1 - lo)
-        x[13] = _clip3(0.1 * (best - base_sp))
-        x[14] = 0.5 * math.log(n)
-    acc = np.empty(net.b1.shape[0])
-    f_sp = mlp(net, w.feat[hi - 1], acc)
+                x[5] = 0.1 * (math.log(w.s[j]) - log_t2)
+                if w.steps[j] > 1.0:
+                    x[6] = math.log(w.steps[j])
+            x[7] = x_a
+            x[8] = _clip3(0.1 * (w.rank[j] - score - ahead - base_sp))
+            x[9] = x_p
+        x[10] = x_q
+        x[11] = x_r
+        x[12] = x_c
+        x[13] = x_b
+        x[14] = x_n
+    shared, acc = w.hidden[0], w.hidden[1]
+    shared[:] = net.b1
+    _hidden_of(net, w.feat[hi - 1], _SHARED, shared)
+    acc[:] = shared
+    _hidden_of(net, w.feat[hi - 1], _OWN, acc)
+    f_sp = _output(net, acc)
     for j in range(lo, hi - 1):
         if arrivals[w.source[j]] == 0:  # a track's first pulse: mht's own score (module comment above)
             continue
-        f = mlp(net, w.feat[j], acc) - f_sp
+        acc[:] = shared
+        _hidden_of(net, w.feat[j], _OWN, acc)
+        f = _output(net, acc) - f_sp
         w.score[j] += f
         w.rank[j] += f
 
@@ -799,7 +840,20 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         nc += 1
         if net.w1.shape[0] > 0:
             _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], log_q, log_rho, cfg.pulse_rate)
-    order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
+    # the children within `margin` of the best are sorted (a NaN rank is kept, sorted last, as without a
+    # margin); stable: ties keep parent order (deterministic)
+    top = w.rank[0]
+    for j in range(1, nc):
+        top = max(top, w.rank[j])
+    floor = top - cfg.margin
+    near = np.empty(nc, np.int64)
+    m = 0
+    for j in range(nc):
+        if not w.rank[j] < floor:
+            near[m] = j
+            m += 1
+    near = near[:m]
+    order = near[np.argsort(-w.rank[near], kind="mergesort")]
     slot = k % ring
     mask = zob.shape[1] - 1
     out = 0
@@ -972,6 +1026,14 @@ def _count(counts, label, missed, n):
         counts[1] += missed
 
 
+@functools.lru_cache(maxsize=64)
+def _zobrist(n: int) -> np.ndarray:
+    """The Zobrist keys (per source, 2^_HASH_BITS random words), the same for every episode: made once
+    per number of sources (reset runs per episode; making them took 54 us)."""
+    rng = np.random.default_rng(0x5EED)
+    return rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
+
+
 class MHT:
     """Policy `mht`.  Parameters: `beam` (hypotheses kept), `start_beam` (kept during track
     initiation), `nscan` (pulses between a pulse and its decision: the N-scan depth), `look` (arrivals
@@ -991,7 +1053,8 @@ class MHT:
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3, dense: float = 12.0, look_init: int = 16, scorer: Scorer | None = None):
+                 dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
+                 scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1006,11 +1069,15 @@ class MHT:
         if rates not in ("priors", "estimate"):
             raise ValueError(f"rates={rates!r} must be one of priors, estimate")
         self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
+        self.reserve = lag - nscan
         self.look_start, self.look, self.dead = look_start, look, dead
         if not dense >= 0:
             raise ValueError(f"dense={dense!r} must be >= 0 (0: always start tracks jointly)")
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
         self.dense, self.look_init = float(dense), look_init
+        if not margin > 0:
+            raise ValueError(f"margin={margin!r} must be > 0 (inf: no score threshold)")
+        self.margin = float(margin)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1031,9 +1098,8 @@ class MHT:
         self.cur.blk[0] = self.prior
         self.size = 1
         # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
-        self.scratch = Scratch.empty(cap * (3 * n + 1), n, max(self.look, self.look_start))
-        rng = np.random.default_rng(0x5EED)
-        self.zob = rng.integers(0, np.iinfo(np.int64).max, size=(n, 1 << _HASH_BITS), dtype=np.int64).astype(np.uint64)
+        self.scratch = Scratch.empty(cap * (3 * n + 1), n, max(self.look, self.look_start), self.net.b1.shape[0])
+        self.zob = _zobrist(n)
         # the key of "no pulse yet": every source's entry for last = -1 (index mask)
         self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
         t_max = float(np.max(priors.period))
@@ -1057,7 +1123,8 @@ class MHT:
             + 4.0 * float(np.max(phase_std)),
             horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
             beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
-            look=self.look, dead=self.dead, reserve=self.lag - self.nscan, initiate=initiate, look_init=self.look_init)
+            look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
+            margin=self.margin)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
@@ -1072,22 +1139,24 @@ class MHT:
         self.steps = 0
 
     def act(self, obs: dict[str, Any]) -> int:
-        if int(obs["valid"]):
-            if self.n_seen == self.toa.size:
-                self.toa = np.concatenate([self.toa, np.zeros(self.toa.size)])
-                self.labels = np.concatenate([self.labels, np.zeros(self.labels.size, np.int64)])
-            self.toa[self.n_seen] = float(obs["toa"][0])
-            self.n_seen += 1
+        # runs once a step (twice a pulse at the default lag): kept lean, the work is in the driver
+        if obs["valid"]:
+            n = self.n_seen
+            if n == self.toa.size:
+                self.toa = np.concatenate([self.toa, np.zeros(n)])
+                self.labels = np.concatenate([self.labels, np.zeros(n, np.int64)])
+            self.toa[n] = obs["toa"][0]
+            self.n_seen = n = n + 1
             # the driver is called every `batch` pulses (its call costs far more than a pulse) or when a
             # decision is due
-            if self.n_seen - self.called >= self.batch or self.n_seen - 1 - self.k >= self.lag - self.nscan:
+            if n - self.called >= self.batch or n - 1 - self.k >= self.reserve:
                 self._run()
         elif not self.ended:
             self.ended = True
             if self.n_seen:
                 self._run()
+        t = self.steps - self.lag  # step t labels pulse t - lag
         self.steps += 1
-        t = self.steps - 1 - self.lag  # step t labels pulse t - lag
         return int(self.labels[t]) if 0 <= t < self.n_labels else 0
 
     def _run(self) -> None:

@@ -1048,7 +1048,9 @@ class MHT:
     pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
     beam's own start is as good; 0: whenever the phases are known), `look_init`
     (the joint start buffers this many periods of the longest source; each pulse chain it judges has
-    at least this many arrivals and covers the buffered start).  `scorer`: a learned correction of the
+    at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
+    many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
+    clearly; inf: the fixed beam only).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,

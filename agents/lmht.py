@@ -39,6 +39,7 @@ from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, _
                            mlp)
 from deint_env.errors import DeintError
 from deint_env.labels import correct_anchored
+from deint_env.policies import policy_info
 
 CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "lmht-v1.safetensors"
 LAYOUT = "mht-candidates"
@@ -90,7 +91,8 @@ class LMHT(MHT):
         params = dict(self.meta.hyperparameters.get("mht", {}))
         params.update(kwargs)
         super().__init__(scorer=scorer, **params)
-        self.version = f"{key}/lmht-{FEATURE_VERSION}"
+        # its labels change with the checkpoint, the feature layout, and mht's search (its registry version)
+        self.version = f"{key}/lmht-{FEATURE_VERSION}/mht-{policy_info('mht').version}"
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -188,13 +188,14 @@ def test_mht_crowded_start_loses_no_source():
         assert np.mean(res.labels[ep.source == i] == i) > 0.5, i
 
 
-def test_mht_compiled_equals_interpreted(monkeypatch):
+@pytest.mark.parametrize("margin", ["", ",margin=8"])
+def test_mht_compiled_equals_interpreted(monkeypatch, margin):
     """The numba step and the same Python code (`.py_func`) give the same labels."""
     spec = ScenarioSpec(name="mht-small", n_pulses=150, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
                         sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
                         priors=PriorSpec(period_error=0.01, phase_error=0.05))
     ep = simulate(spec, 5)
-    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0"
+    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0" + margin
     compiled = play(make_policy(policy), ep).labels
     for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain", "_best_start",
                  "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained"):
@@ -203,8 +204,33 @@ def test_mht_compiled_equals_interpreted(monkeypatch):
     np.testing.assert_array_equal(compiled, interpreted)
 
 
+def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
+    """A score margin (an adaptive beam) keeps fewer hypotheses where one leads clearly; a huge one is
+    the fixed beam (the same labels); on an easy scene a moderate one loses nothing."""
+    rng = np.random.default_rng(11)
+    periods = (7.3, 11.9, 17.1)
+    toa, src = generate(rng, periods, 120, pri_jitter=0.05, toa_jitter=0.1, missing=0.05, spurious=0.05)
+    phases = [float(toa[src == i][0]) for i in range(3)]
+    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    fixed = label_file(tmp_path, pulses, priors, "mht:beam=16")
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=1e9"), fixed)
+    ep_priors = Priors(n_labels=3, period=np.array(periods), phase=np.array(phases), period_std=np.full(3, 0.05),
+                       phase_std=np.full(3, 0.5))
+    sizes = {}
+    for margin in (math.inf, 10.0):
+        agent = mht_module.MHT(beam=16, batch=1, margin=margin)
+        agent.reset(ep_priors, {})
+        live = []
+        for t in toa:
+            agent.act({"toa": np.array([t]), "valid": np.int64(1)})
+            live.append(agent.size)
+        sizes[margin] = float(np.mean(live))
+    assert sizes[10.0] < 0.5 * sizes[math.inf], sizes
+    assert np.mean(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=10") == fixed) > 0.99
+
+
 def test_mht_rejects_bad_parameters():
-    for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0"):
+    for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

@@ -146,6 +146,7 @@ class Scratch(NamedTuple):
     used: np.ndarray
     stack: np.ndarray
     hidden: np.ndarray
+    log_s: np.ndarray
 
     @classmethod
     def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
@@ -153,7 +154,7 @@ class Scratch(NamedTuple):
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
                    np.zeros(c), np.zeros(c), np.zeros((c, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
-                   np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((2, hidden)))
+                   np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c))
 
 
 class Settings(NamedTuple):
@@ -227,9 +228,11 @@ FEATURES = ("hit", "restart", "spurious", "abs_z", "z2", "log_spread", "log_miss
             "log_period_std", "log_q", "log_r", "candidates", "best_llr", "log_sources")
 N_FEATURES = len(FEATURES)
 FEATURE_VERSION = 1
-# the features equal for every candidate of one parent (their hidden-layer terms are summed once per parent)
-_SHARED = tuple(FEATURES.index(f) for f in ("log_q", "log_r", "candidates", "best_llr", "log_sources"))
-_OWN = tuple(f for f in range(N_FEATURES) if f not in _SHARED)
+# the features equal for every candidate of a pulse, of one parent, and a candidate's own: their
+# hidden-layer terms are summed once per pulse, per parent, per candidate
+_PULSE = tuple(FEATURES.index(f) for f in ("log_q", "log_r", "log_sources"))
+_PARENT = tuple(FEATURES.index(f) for f in ("candidates", "best_llr"))
+_OWN = tuple(f for f in range(N_FEATURES) if f not in _PULSE + _PARENT)
 
 
 class Scorer(NamedTuple):
@@ -270,52 +273,68 @@ def _clip3(v):
     return min(3.0, max(-3.0, v))
 
 
-@njit(cache=True, nogil=True)
-def _hidden_of(net, x, features, acc):
+@njit(cache=True, nogil=True, inline="always")
+def _hidden_of(net, features, x, acc):
     """acc += the first layer's terms of `features` (indices) of the row x, clipped as `mlp` clips."""
     for f in features:
         v = min(max(x[f], net.lo[f]), net.hi[f])
         if v != 0.0:  # most rows are sparse: a candidate has one kind bit, spurious no track features
-            for u in range(acc.shape[0]):
+            for u in range(net.w1.shape[1]):
                 acc[u] += v * net.w1[f, u]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _output(net, acc):
     out = net.b2[0]
-    for u in range(acc.shape[0]):
+    for u in range(net.w2.shape[0]):
         if acc[u] > 0.0:
             out += acc[u] * net.w2[u]
     return out
 
 
 @njit(cache=True, nogil=True)
-def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_rate):
+def _pulse_terms(net, w, x_q, x_r, x_n):
+    """Once per pulse, into w.hidden[2]: b1 plus the terms of the pulse's features (rates, sources); into
+    w.hidden[3]: the terms of a spurious candidate's own features (its kind bit, the rest 0)."""
+    base, sp = w.hidden[2], w.hidden[3]
+    x = w.hidden[4, :N_FEATURES]
+    for f in range(N_FEATURES):
+        x[f] = 0.0
+    x[2] = 1.0
+    x[10] = x_q
+    x[11] = x_r
+    x[14] = x_n
+    for u in range(net.b1.shape[0]):
+        base[u] = net.b1[u]
+        sp[u] = 0.0
+    _hidden_of(net, _PULSE, x, base)
+    _hidden_of(net, _OWN, x, sp)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
     """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat,
     and f(x_j) - f(x_spurious) added to their scores and ranks.  score, ahead: the parent's; arrivals,
-    blk: its tracks'.  f is `mlp`, its first layer split: the features shared by the parent's
-    candidates (_SHARED) once per parent, a candidate's own (_OWN) per candidate."""
-    n = arrivals.shape[0]
+    blk: its tracks'; x_q, x_r, x_n: the pulse's features (`_pulse_terms` has summed their terms).  f
+    is `mlp` with its first layer summed in parts: the pulse's, the parent's, a candidate's own."""
     base_sp = w.rank[hi - 1] - score - ahead
     best = base_sp
     for j in range(lo, hi - 1):
         best = max(best, w.rank[j] - score - ahead)
-    # the parent's shared features (cheap first: this runs for every candidate of every parent)
-    x_q, x_r = 0.2 * log_q, 0.2 * (log_rho - math.log(pulse_rate))
-    x_c, x_b, x_n = 0.25 * (hi - 1 - lo), _clip3(0.1 * (best - base_sp)), 0.5 * math.log(n)
+    x_c, x_b = 0.25 * (hi - 1 - lo), _clip3(0.1 * (best - base_sp))
     prev = -1  # a track's candidates are consecutive: its own features are computed once
     x_a = x_p = log_t2 = 0.0
     for j in range(lo, hi):
         x = w.feat[j]
-        x[:] = 0.0
+        for f in range(N_FEATURES):
+            x[f] = 0.0
         i = w.source[j]
         if i < 0:
             x[2] = 1.0
         else:
             if i != prev:
                 prev = i
-                t = blk[i, 0]
-                log_t2 = 2.0 * math.log(t)
+                log_t2 = 2.0 * math.log(blk[i, 0])
                 x_a = math.log1p(arrivals[i]) / 3.0
                 x_p = 0.1 * (math.log(max(blk[i, 2], 1e-300)) - log_t2)
             if w.steps[j] < 0:  # a restart after -steps silent arrivals
@@ -326,7 +345,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_
                 z = w.e[j] / math.sqrt(w.s[j])
                 x[3] = abs(z)
                 x[4] = 0.25 * z * z
-                x[5] = 0.1 * (math.log(w.s[j]) - log_t2)
+                x[5] = 0.1 * (w.log_s[j] - log_t2)
                 if w.steps[j] > 1.0:
                     x[6] = math.log(w.steps[j])
             x[7] = x_a
@@ -337,17 +356,20 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_
         x[12] = x_c
         x[13] = x_b
         x[14] = x_n
-    shared, acc = w.hidden[0], w.hidden[1]
-    shared[:] = net.b1
-    _hidden_of(net, w.feat[hi - 1], _SHARED, shared)
-    acc[:] = shared
-    _hidden_of(net, w.feat[hi - 1], _OWN, acc)
+    shared, acc, sp = w.hidden[0], w.hidden[1], w.hidden[3]
+    h = net.b1.shape[0]
+    for u in range(h):
+        shared[u] = w.hidden[2, u]
+    _hidden_of(net, _PARENT, w.feat[hi - 1], shared)
+    for u in range(h):
+        acc[u] = shared[u] + sp[u]
     f_sp = _output(net, acc)
     for j in range(lo, hi - 1):
         if arrivals[w.source[j]] == 0:  # a track's first pulse: mht's own score (module comment above)
             continue
-        acc[:] = shared
-        _hidden_of(net, w.feat[j], _OWN, acc)
+        for u in range(h):
+            acc[u] = shared[u]
+        _hidden_of(net, _OWN, w.feat[j], acc)
         f = _output(net, acc) - f_sp
         w.score[j] += f
         w.rank[j] += f
@@ -753,6 +775,10 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
     ring = c.label.shape[1]
     gate2, jitter_var, interval_var = cfg.gate2, cfg.jitter_var, cfg.interval_var
     w.used[:] = 0
+    x_q = x_r = x_n = 0.0  # the learned scorer's features of this pulse
+    if net.w1.shape[0] > 0:
+        x_q, x_r, x_n = 0.2 * log_q, 0.2 * (log_rho - math.log(cfg.pulse_rate)), 0.5 * math.log(n)
+        _pulse_terms(net, w, x_q, x_r, x_n)
     nc = 0
     for b in range(size):
         first = nc
@@ -801,7 +827,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 w.parent[nc] = b
                 w.source[nc] = i
                 w.steps[nc] = steps
-                w.score[nc] = c.score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                ls = math.log(s)
+                w.score[nc] = c.score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + ls + e * e / s)
+                w.log_s[nc] = ls
                 w.h[nc] = hv
                 w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
                 w.e[nc] = e
@@ -839,7 +867,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         w.rank[nc] = w.score[nc] + c.ahead[b]
         nc += 1
         if net.w1.shape[0] > 0:
-            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], log_q, log_rho, cfg.pulse_rate)
+            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], x_q, x_r, x_n)
     # the children within `margin` of the best are sorted (a NaN rank is kept, sorted last, as without a
     # margin); stable: ties keep parent order (deterministic)
     top = w.rank[0]
@@ -879,12 +907,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                     break
         if dup:
             continue
-        x.blk[out] = c.blk[b]
-        x.arrivals[out] = c.arrivals[b]
-        x.last[out] = c.last[b]
-        x.h[out] = c.h[b]
-        x.label[out] = c.label[b]
-        x.missed[out] = c.missed[b]
+        _copy(c, b, x, out)
         x.key[out] = h
         x.score[out] = w.score[j]
         x.ahead[out] = w.rank[j] - w.score[j]
@@ -929,6 +952,21 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _copy(c, b, x, out):
+    """Hypothesis b of beam c into slot `out` of beam x (its tracks and label rings; the scalars are the
+    caller's): element loops, as numba's row assignments cost ~3x more at these sizes."""
+    for i in range(c.blk.shape[1]):
+        for f in range(5):
+            x.blk[out, i, f] = c.blk[b, i, f]
+        x.arrivals[out, i] = c.arrivals[b, i]
+        x.last[out, i] = c.last[b, i]
+        x.h[out, i] = c.h[b, i]
+    for j in range(c.label.shape[1]):
+        x.label[out, j] = c.label[b, j]
+        x.missed[out, j] = c.missed[b, j]
+
+
 @njit(cache=True, nogil=True)
 def _prune(size, decided, label, c):
     """N-scan pruning: keep (in order) the hypotheses that gave pulse `decided` the label `label`."""
@@ -937,15 +975,10 @@ def _prune(size, decided, label, c):
     for b in range(size):
         if c.label[b, slot] == label:
             if out != b:
-                c.blk[out] = c.blk[b]
-                c.arrivals[out] = c.arrivals[b]
-                c.last[out] = c.last[b]
+                _copy(c, b, c, out)
                 c.key[out] = c.key[b]
                 c.score[out] = c.score[b]
-                c.h[out] = c.h[b]
                 c.ahead[out] = c.ahead[b]
-                c.label[out] = c.label[b]
-                c.missed[out] = c.missed[b]
             out += 1
     return out
 

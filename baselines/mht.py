@@ -740,7 +740,8 @@ def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
             if v > best:
                 best, best_steps = v, steps
         restart = log_1mq + cfg.log_gap - math.log(blk[i, PERIOD])
-        if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)) and restart > best:  # the source was off and is back: restart at y (as `_step` does)
+        # the source was off and is back (after `dead` silent arrivals, as in `_step`): restart at y
+        if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)) and restart > best:
             total += restart
             rt, rtt = _restart_period(t, ptt, blk[i, PERIOD], blk[i, P_TT])
             b[i, PERIOD], b[i, TAU], b[i, P_TT], b[i, P_TX], b[i, P_XX] = rt, y, rtt, 0.0, jv
@@ -1283,8 +1284,8 @@ class MHT:
     def _identities(self, labels: np.ndarray, fin: np.ndarray, t: np.ndarray, var: np.ndarray) -> np.ndarray:
         """Which label each track reports: the assignment of tracks to the priors' labels that maximises
         the priors' log-density of the tracks' periods (in log-period: a period's prior N(t_i, var_i) and
-        the track's estimate with its variance).  A track with fewer than 2 pulses in the window says
-        nothing.  Tracks started from exchangeable priors (MK94 VI-B's x_{1|0} = 1 for all) are so told
+        the track's estimate with its variance).  A track given fewer than 2 of the labels decided so far
+        says nothing.  Tracks started from exchangeable priors (MK94 VI-B's x_{1|0} = 1 for all) are so told
         apart by the relative frequencies; distinct confident priors keep their order."""
         n = self.n
         cost = np.zeros((n, n))

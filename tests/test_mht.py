@@ -295,3 +295,4 @@ def test_mht_starts_exchangeable_tracks_from_the_relative_frequencies():
     right = mht_module._loglik(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
     swapped = mht_module._loglik(toa[:300], np.array([1, 0, 2])[src[:300]], blk, cfg, log_q, log_1mq, log_rho)
     assert right > swapped + 10.0
+    assert right == mht_module._loglik.py_func(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)

@@ -34,8 +34,12 @@ POLICIES = (
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them); version 3: joint
     # start of crowded scenes; version 4: the joint start in order of period, chains over the whole buffered
     # start, pairs re-started both ways (labels change only where it runs: scale-v0's 32-source scenarios);
-    # and priors tested against the buffered start, restarted from FDP when rejected (paper-v0's wrong priors)
-    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=4,
+    # and priors tested against the buffered start, restarted from FDP when rejected (paper-v0's wrong priors);
+    # version 5: priors that predict no first arrival (a vague period or phase) are combined with the relative
+    # frequencies (source_prob), the start is the likeliest of three whole initialisations over the buffered
+    # window, and the tracks' labels are assigned by their periods (changes only such scenes, e.g. paper-v0's
+    # MK94 VI-A/VI-B and CM00 ones; core-v0, robust-v0 and scale-v0 are labelled as by version 4)
+    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=5,
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
     PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,

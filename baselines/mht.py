@@ -68,6 +68,24 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   within a period (its gate's half-width; a vague period or an unknown phase predicts nothing to test,
   the beam's own start handles those) and with at most 12 sources (FDP's full tree costs N^4 a
   pulse).  A start the priors explain is labelled exactly as without the test.
+- Multi-start (`MHT._multistart`), when the priors predict no first arrival (a vague period or an
+  unknown phase; at most 12 sources).  The priors then say little the beam can start from (MK94 VI-A-2's
+  x_{1|0} = (4, 27) with Sigma = 10^6 I, VI-B's x_{1|0} = 1 for all three tracks), and the beam's own start
+  is a gamble: a track locks on a harmonic (T = 90 for a T = 30 train, its other pulses called spurious),
+  or two tracks of identical priors split one train.  Two things help.  (1) The relative frequencies
+  pi_i (the priors' `source_prob`, MK94 IV-2's known a priori probabilities) predict each period from
+  the window's pulse rate lambda: T_i = (1 - q) / (pi_i lambda), known to 10 %, combined with the
+  stated period (a product of Gaussians): the informed prior (a uniform pi, MK94 VI-B's "no a priori
+  information", is not used).  (2) Three whole initialisations -- the informed prior, the stated priors
+  and FDP's start (`_fdp_start`) -- each start a beam over the buffered window; each beam's labelling of
+  the window is scored alike (`_loglik`: the labelling's log-likelihood, as `_step` scores it, under
+  the informed prior) and the likeliest starts the real beam.  A track that labelling gave fewer than 3
+  pulses, or whose period over the window left the informed prior's gate, learnt nothing and starts from
+  the informed prior, which is also the prior a restarting track falls back on.  Last, tracks of
+  exchangeable priors have no identity of their own: when the first label is due, each track reports the
+  label whose informed period fits its estimate best (`_identities`, an assignment in log-period), so
+  labels follow the priors where those are confident and the relative frequencies where they are not.
+  The start costs three window-long beam runs once; the per-pulse cost is unchanged.
 - Unknown rates.  A rate the priors do not state (NaN) is estimated online from the decided labels
   with a weak Beta prior (mean 0.05, worth 20 arrivals): q = (misses + 1) / (arrivals + 20),
   r = (spurious + 1) / (arrivals + 20).  Stated rates are used as given (floored so a log stays finite).
@@ -85,6 +103,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
+from scipy.optimize import linear_sum_assignment
 
 from baselines.kalman import DLMModel, prior_block
 from deint_env.episode import Priors
@@ -382,6 +401,7 @@ _CACHE = 8  # look-ahead values cached per source and pulse
 _VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are not tested
 _VET_SLACK = 0.1  # unexplained pulses allowed beyond the spurious rate, and the gain a restart must bring
 _VET_LOOK = 256  # at most this many arrivals per chain
+_RATE_REL = 0.1  # relative deviation of a period from the relative frequencies and the window's pulse rate
 
 
 @njit(cache=True, nogil=True)
@@ -753,6 +773,51 @@ def _explained(toa, end, blk, cfg, log_q, log_1mq, looks, fitted):
             fitted[i, PERIOD], fitted[i, TAU] = fit[PERIOD], toa[j] - fit[PERIOD]
             fitted[i, P_TT], fitted[i, P_TX], fitted[i, P_XX] = var_t, -var_t, cfg.jitter_var + var_t
     return int(np.sum(used))
+
+
+@njit(cache=True, nogil=True)
+def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
+    """The log-likelihood of a labelling of toa under the tracks' prior blocks `blk`, scored as `_step`
+    scores it (a hit after m misses log(1 - q) + max(m log q, log p_gap) + log N(e; 0, S), the nearest
+    arrival or the next one, whichever is likelier; a restart log(1 - q) + log p_gap - log T; spurious
+    log rho), each track's KF updated with its pulses (2.8), (2.15)."""
+    n = blk.shape[0]
+    b = blk.copy()
+    jv, iv = cfg.jitter_var, cfg.interval_var
+    total = 0.0
+    for k in range(toa.shape[0]):
+        i = labels[k]
+        if i >= n:
+            total += log_rho
+            continue
+        y = toa[k]
+        t, tau, ptt, ptx, pxx = b[i, PERIOD], b[i, TAU], b[i, P_TT], b[i, P_TX], b[i, P_XX]
+        near = max(1.0, np.floor((y - tau) / t + 0.5))
+        best, best_steps = -np.inf, 1.0
+        for steps in (near, 1.0):
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            e = y - (tau + steps * t)
+            v = log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+            if steps > 1.0:
+                v += max((steps - 1.0) * log_q, cfg.log_gap)
+            if v > best:
+                best, best_steps = v, steps
+        restart = log_1mq + cfg.log_gap - math.log(blk[i, PERIOD])
+        # the source was off and is back (after `dead` silent arrivals, as in `_step`): restart at y
+        if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)) and restart > best:
+            total += restart
+            rt, rtt = _restart_period(t, ptt, blk[i, PERIOD], blk[i, P_TT])
+            b[i, PERIOD], b[i, TAU], b[i, P_TT], b[i, P_TX], b[i, P_XX] = rt, y, rtt, 0.0, jv
+            continue
+        total += best
+        steps = best_steps
+        s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+        p_tx = ptx + steps * ptt
+        p_xx = s - jv
+        g, r_s = (y - (tau + steps * t)) / s, jv / s
+        b[i, PERIOD], b[i, TAU] = t + p_tx * g, tau + steps * t + p_xx * g
+        b[i, P_TT], b[i, P_TX], b[i, P_XX] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
+    return total
 
 
 @njit(cache=True, nogil=True)
@@ -1164,6 +1229,8 @@ class MHT:
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
         self.vettable = bool(np.all(0.5 * width < p[:, PERIOD]))
+        self.perm = np.arange(n + 1)  # the label each track reports (`_identities`); spurious stays n
+        self.identify = None  # (periods, variances) the tracks' identities are to be settled by
         self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
@@ -1192,7 +1259,13 @@ class MHT:
                 self._run()
         t = self.steps - self.lag  # step t labels pulse t - lag
         self.steps += 1
-        return int(self.labels[t]) if 0 <= t < self.n_labels else 0
+        if 0 <= t < self.n_labels:
+            if self.identify is not None:
+                # the tracks' identities from all the beam has seen when the first label is due
+                self.perm[:self.n] = self._identities(self.labels[:self.n_labels], self.cur.blk[0], *self.identify)
+                self.identify = None
+            return int(self.perm[self.labels[t]])
+        return 0
 
     def _run(self) -> None:
         self.called = self.n_seen
@@ -1212,10 +1285,14 @@ class MHT:
             self.cur, self.nxt = self.nxt, self.cur
 
     def _vet(self, end: int) -> None:
-        """The prior-consistency test and the data-driven restart (see the module docstring): the first
-        `end` pulses (what the driver has buffered before it labels pulse 0) against the priors."""
+        """The prior-consistency test and the data-driven restart, or for priors that predict no first
+        arrival the multi-start (see the module docstring): the first `end` pulses (what the driver has
+        buffered before it labels pulse 0) against the priors."""
         n, cfg = self.n, self.cfg
-        if not self.vettable or n > _VET_MAX_SOURCES or end < 2 * n:
+        if n > _VET_MAX_SOURCES or end < 2 * n:
+            return
+        if not self.vettable:
+            self._multistart(end)
             return
         toa = self.toa[:end]
         log_q, log_1mq, _ = _rates(cfg, self.counts)
@@ -1234,6 +1311,99 @@ class MHT:
         if again - explained >= _VET_SLACK * end and end - again <= 0.5 * (end - explained):
             self.prior[:] = fitted
             self.cur.blk[0] = fitted
+
+    def _multistart(self, end: int) -> None:
+        """Vague priors: the start chosen among whole initialisations by the likelihood of the buffered
+        window (see the module docstring).  Each candidate's beam labels the window; the labellings are
+        scored alike (`_loglik`, under the informed prior) and the likeliest candidate starts the beam.
+        Its tracks are later given the labels whose informed periods fit them best (`_identities`)."""
+        cfg = self.cfg
+        toa = np.ascontiguousarray(self.toa[:end])
+        log_q, log_1mq, log_rho = _rates(cfg, self.counts)
+        rate, rate_var = self._rate_periods(toa)
+        informed = self._rate_start(toa, rate, rate_var)
+        cands = [informed, self._fdp_start(toa)]
+        if not np.array_equal(informed, self.prior):  # the relative frequencies said something
+            cands.append(self.prior.copy())
+        best, best_ll = None, -np.inf
+        for blk in cands:
+            labels, fin = self._window(toa, blk)
+            ll = _loglik(toa, labels, informed, cfg, log_q, log_1mq, log_rho)
+            if ll > best_ll:
+                best, best_ll = (blk, labels, fin), ll
+        blk, labels, fin = best
+        # a track the winning labelling gave fewer than 3 pulses of the window has learnt nothing from it, and
+        # one whose period over the window left the informed prior's gate learnt a wrong period: they start
+        # from the informed prior
+        few = np.bincount(labels, minlength=self.n + 1)[:self.n] < 3
+        far = (fin[:, PERIOD] - rate) ** 2 > cfg.gate2 * (rate_var + np.maximum(fin[:, P_TT], 0.0))
+        blk = np.where((few | far)[:, None], informed, blk)
+        self.prior[:] = informed
+        self.cur.blk[0] = blk
+        self.identify = rate, rate_var  # the tracks' identities are settled at the first label (`act`)
+
+    def _window(self, toa: np.ndarray, blk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The beam started from blocks `blk` run over the window `toa` (as if the stream ended there): its
+        labels and its best hypothesis's final blocks."""
+        n, ring, cap = self.n, self.nscan + 1, self.start_beam
+        cur, nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
+        cur.blk[0] = blk
+        cur.key[0] = self.cur.key[0]
+        labels = np.zeros(toa.size, np.int64)
+        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.cfg,
+                                self.counts.copy(), labels, 0, self.net)
+        return labels, (nxt if swapped else cur).blk[0].copy()
+
+    def _rate_periods(self, toa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each track's period and its variance from the stated priors combined with the known relative
+        frequencies pi_i (MK94 IV-2, the priors' `source_prob`): source i's pulses arrive at pi_i times
+        the window's pulse rate lambda (less the spurious share), and a source emits (1 - q) / T_i, so
+        T_i = (1 - q) / (pi_i lambda (1 - r / (1 + r))), known to _RATE_REL (the window's rate and merged
+        pulses); the two Gaussians are multiplied."""
+        pri = self.priors
+        t, var = pri.period.astype(float), pri.period_std.astype(float) ** 2
+        pi = np.asarray(pri.source_prob, dtype=float)
+        # uniform pi is MK94 VI-B's "no a priori information" (pi_i = 1/4 for a PT run that assumes N = 4):
+        # it tells no track from another, and its rate-implied period only divides the pulse rate by a guessed N
+        if pi.size != self.n or not np.all(pi > 0) or np.all(pi == pi[0]) or toa[-1] <= toa[0]:
+            return t, var
+        q = 0.05 if math.isnan(self.cfg.known_q) else self.cfg.known_q
+        r = 0.05 if math.isnan(self.cfg.known_r) else self.cfg.known_r
+        lam = (toa.size - 1) / (toa[-1] - toa[0]) / (1.0 + r)
+        t_rate = (1.0 - q) / (pi * lam)
+        var_rate = (_RATE_REL * t_rate) ** 2
+        var_c = 1.0 / (1.0 / var + 1.0 / var_rate)
+        return var_c * (t / var + t_rate / var_rate), var_c
+
+    def _rate_start(self, toa: np.ndarray, t: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """Prior blocks with the periods of `_rate_periods`; a phase the priors do not know to within the
+        period is uniform over the first period after the window's first pulse."""
+        pri = self.priors
+        known = np.isfinite(pri.phase) & (pri.phase_std < t / math.sqrt(12.0))
+        phase = np.where(known, pri.phase, toa[0] + 0.5 * t)
+        phase_std = np.where(known, pri.phase_std, t / math.sqrt(12.0))
+        b = prior_block(Priors(n_labels=self.n, period=t, phase=phase, period_std=np.sqrt(var), phase_std=phase_std))
+        return np.ascontiguousarray(np.stack(list(b), axis=-1))
+
+    def _identities(self, labels: np.ndarray, fin: np.ndarray, t: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """Which label each track reports: the assignment of tracks to the priors' labels that maximises
+        the priors' log-density of the tracks' periods (in log-period: a period's prior N(t_i, var_i) and
+        the track's estimate with its variance).  A track given fewer than 2 of the labels decided so far
+        says nothing.  Tracks started from exchangeable priors (MK94 VI-B's x_{1|0} = 1 for all) are so told
+        apart by the relative frequencies; distinct confident priors keep their order."""
+        n = self.n
+        cost = np.zeros((n, n))
+        counts = np.bincount(labels[labels < n], minlength=n)
+        for j in range(n):
+            tj = fin[j, PERIOD]
+            if counts[j] < 2 or not tj > 0:
+                continue
+            v = var / t ** 2 + max(fin[j, P_TT], 0.0) / tj ** 2
+            cost[j] = -0.5 * (np.log(v) + (math.log(tj) - np.log(t)) ** 2 / v)
+        rows, cols = linear_sum_assignment(-cost)
+        perm = np.arange(n)
+        perm[rows] = cols
+        return perm
 
     def _looks(self, toa: np.ndarray, blk: np.ndarray) -> np.ndarray:
         """Arrivals a track's chain needs to cover the buffered window (at most `_VET_LOOK`)."""
@@ -1271,5 +1441,7 @@ class MHT:
 
     def estimates(self) -> dict[str, np.ndarray]:
         blk, arr = self.cur.blk[0], self.cur.arrivals[0]
-        period = blk[:, PERIOD].copy()
-        return {"period": period, "phase": blk[:, TAU] - (np.maximum(arr, 1) - 1) * period}
+        period, phase = np.empty(self.n), np.empty(self.n)
+        period[self.perm[:self.n]] = blk[:, PERIOD]
+        phase[self.perm[:self.n]] = blk[:, TAU] - (np.maximum(arr, 1) - 1) * blk[:, PERIOD]
+        return {"period": period, "phase": phase}

@@ -7,7 +7,7 @@ measured in the same run.  `--suite S`: every scenario of S on its first `--seed
 the leaderboard times), the policies played in turn on each repeat and each episode's best time kept.
 
 `python benchmarks/bench_agent.py [--policies lmht,dagger-beam,fdp,dagger] [--repeats 3]`
-`python benchmarks/bench_agent.py --suite robust-v0 --policies lmht,mht,fdp [--seeds 2]`
+`python benchmarks/bench_agent.py --suite robust-v0 --policy lmht --policy mht:beam=16,margin=15 --policy fdp`
 """
 
 from __future__ import annotations
@@ -44,12 +44,15 @@ def suite_us_per_pulse(specs: list[str], suite: str, seeds: int, repeats: int) -
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--policies", default="lmht,dagger-beam,dagger-beam:beam=4,fdp,dagger")
+    ap.add_argument("--policies", default="lmht,dagger-beam,dagger-beam:beam=4,fdp,dagger",
+                    help="plain specs, comma-separated")
+    ap.add_argument("--policy", action="append", default=[], help="one spec NAME:k=v,k=v (repeatable; replaces "
+                    "--policies)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--suite", help="time every scenario of this suite instead")
     ap.add_argument("--seeds", type=int, default=2, help="with --suite: test seeds per scenario")
     args = ap.parse_args()
-    specs = args.policies.split(",")
+    specs = args.policy or args.policies.split(",")
     if args.suite:
         got = suite_us_per_pulse(specs, args.suite, args.seeds, args.repeats)
         print(f"us per pulse (policy compute time, each episode's best of {args.repeats}), {args.suite}, "

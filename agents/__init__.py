@@ -21,8 +21,8 @@ POLICIES = (
                            "with a beam of 8 of its own log-probabilities; lag 3 + decision_lag 20 = 23"),
     PolicyInfo("lmht", "agents.lmht:LMHT", kind="learned", modes=("anchored",), extra="rl",
                description="mht's tracker whose candidate scores carry a trained correction (one small network shared "
-                           "by every candidate: agents/lmht.py, agents/checkpoints/lmht-v2.safetensors, trained on "
-                           "core-v0 + robust-v0 + agile-v0 train seeds; lmht:checkpoint=PATH,beam=B)"),
+                           "by every candidate: agents/lmht.py, agents/checkpoints/lmht-v1.safetensors, trained on "
+                           "core-v0 + robust-v0 train seeds; lmht:checkpoint=PATH,beam=B)"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "
                            "core-v0's train seeds, plays 2-8 sources, lag 3"),

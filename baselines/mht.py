@@ -212,12 +212,6 @@ class Settings(NamedTuple):
 #   12   the number of track candidates of this parent / 4
 #   13   (max_j base_j - base_spurious) / 10, clipped to +-3: how well the pulse is explained at all
 #   14   log(N) / 2, N the sources
-#   15   min(|y_last - tau|, 3 sigma_J) / (3 sigma_J) (hit, restart): the track's filtered last arrival tau
-#        against its last pulse y_last (the last update's residual e_prev J / S_prev).  Meant to flag an
-#        agile PRI's track; along the truth it does not (mean 0.26 on agile-stagger2 and on core-n3-spread4-jitter0.2)
-#   16   min(|e| / T, 0.5) * 2 (hit): the innovation relative to the period -- an agile PRI's step
-#   17   log(T / T_prior), clipped to +-1 (hit, restart): the period estimate against the prior's -- a
-#        track locked on every other pulse of its source (a period 2 T_prior) sees it
 # Not the look-ahead change h' - h on its own: given it, the local loss learns to cancel ~40 % of it
 # (the look-ahead's pulses are counted again when taken), which is right for one hypothesis and
 # wrong for the beam, where the look-ahead is what keeps two tracks from swapping at their start.
@@ -227,10 +221,9 @@ class Settings(NamedTuple):
 # 0.68, mht 0.99).
 
 FEATURES = ("hit", "restart", "spurious", "abs_z", "z2", "log_spread", "log_misses", "log_arrivals", "llr_spurious",
-            "log_period_std", "log_q", "log_r", "candidates", "best_llr", "log_sources", "last_residual", "rel_innovation",
-            "log_period_ratio")
+            "log_period_std", "log_q", "log_r", "candidates", "best_llr", "log_sources")
 N_FEATURES = len(FEATURES)
-FEATURE_VERSION = 2
+FEATURE_VERSION = 1
 
 
 class Scorer(NamedTuple):
@@ -272,17 +265,16 @@ def _clip3(v):
 
 
 @njit(cache=True, nogil=True)
-def _learned(net, w, lo, hi, score, ahead, arrivals, blk, last, toa, prior, cfg, log_q, log_rho):
+def _learned(net, w, lo, hi, score, ahead, arrivals, blk, log_q, log_rho, pulse_rate):
     """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat,
     and f(x_j) - f(x_spurious) added to their scores and ranks.  score, ahead: the parent's; arrivals,
-    blk, last: its tracks'."""
+    blk: its tracks'."""
     n = arrivals.shape[0]
     base_sp = w.rank[hi - 1] - score - ahead
     best = base_sp
     for j in range(lo, hi - 1):
         best = max(best, w.rank[j] - score - ahead)
-    log_r = log_rho - math.log(cfg.pulse_rate)
-    sigma3 = 3.0 * math.sqrt(cfg.jitter_var)
+    log_r = log_rho - math.log(pulse_rate)
     for j in range(lo, hi):
         x = w.feat[j]
         x[:] = 0.0
@@ -302,10 +294,6 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, last, toa, prior, cfg,
                 x[4] = 0.25 * z * z
                 x[5] = 0.1 * math.log(w.s[j] / (t * t))
                 x[6] = math.log(w.steps[j])
-                x[16] = 2.0 * min(abs(w.e[j]) / t, 0.5)
-            if last[i] >= 0:
-                x[15] = min(abs(toa[last[i]] - blk[i, TAU]), sigma3) / sigma3
-            x[17] = min(1.0, max(-1.0, math.log(t / prior[i, PERIOD])))
             x[7] = math.log1p(arrivals[i]) / 3.0
             x[8] = _clip3(0.1 * (base - base_sp))
             x[9] = 0.1 * math.log(max(blk[i, 2], 1e-300) / (t * t))
@@ -810,8 +798,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         w.rank[nc] = w.score[nc] + c.ahead[b]
         nc += 1
         if net.w1.shape[0] > 0:
-            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], c.last[b], toa, prior, cfg,
-                     log_q, log_rho)
+            _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], log_q, log_rho, cfg.pulse_rate)
     order = np.argsort(-w.rank[:nc], kind="mergesort")  # stable: ties keep parent order (deterministic)
     slot = k % ring
     mask = zob.shape[1] - 1

@@ -69,30 +69,6 @@ def test_training_rows_follow_the_truth():
     assert 0.0 < loss < 0.3
 
 
-def test_agile_features_along_the_truth():
-    """Features 15-17 on the right hits of settled tracks: in range, and the period near the prior's (x17 ~ 0,
-    no half-rate lock along the truth)."""
-    from baselines.mht import FEATURES
-
-    last, rel, ratio = (FEATURES.index(n) for n in ("last_residual", "rel_innovation", "log_period_ratio"))
-    zero = TorchScorer(4, 0).numba()
-    for name in ("agile-v0/agile-stagger2", "core-v0/core-n3-spread4-jitter0.2"):
-        episode = simulate(find_entry(name).spec.replace(n_pulses=300), 2)
-        feat, _, right, _ = candidates(episode, zero, 0.0, np.random.default_rng(0))
-        hits = feat[right & (feat[:, 0] == 1.0) & (feat[:, 7] > np.log1p(10) / 3.0)]
-        assert hits.shape[0] > 100
-        assert np.all((hits[:, [last, rel]] >= 0.0) & (hits[:, [last, rel]] <= 1.0))
-        assert np.median(np.abs(hits[:, ratio])) < 0.1
-
-
-def test_python_m_agents_lmht_refuses_an_unknown_exclusion(capsys):
-    from agents.lmht import main
-
-    with pytest.raises(SystemExit):
-        main(["--suite", "core-v0", "--exclude", "agile-v0/agile-dwell-switch"])
-    assert "--exclude agile-v0/agile-dwell-switch: not a scenario" in capsys.readouterr().err
-
-
 def test_a_trained_checkpoint_round_trips(tmp_path):
     out = train(["core-v0/core-n3-spread4-jitter0.2"], tmp_path / "s.safetensors", seeds=1, iterations=2, epochs=3,
                 hidden=4, log=lambda _: None)

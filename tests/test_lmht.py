@@ -9,10 +9,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from agents.lmht import LMHT, TorchScorer, candidates, group_loss, train  # noqa: E402
+from agents.lmht import SEARCH, SEARCH_VERSION, LMHT, TorchScorer, candidates, group_loss, train  # noqa: E402
 from baselines.mht import MHT  # noqa: E402
-from baselines.mht import N_FEATURES, mlp  # noqa: E402
+from baselines.mht import FEATURE_VERSION, N_FEATURES, mlp  # noqa: E402
 from deint_env.errors import DeintError  # noqa: E402
+from deint_env.policies import make_policy, policy_info  # noqa: E402
 from deint_env.runner import play  # noqa: E402
 from deint_env.simulate import simulate  # noqa: E402
 from deint_env.suites import find_entry  # noqa: E402
@@ -47,6 +48,13 @@ def test_a_zero_scorer_is_mht_and_a_random_one_is_not():
     ref = play(MHT(), episode, clustering=False).labels
     assert np.array_equal(play(MHT(scorer=zero), episode, clustering=False).labels, ref)
     assert not np.array_equal(play(MHT(scorer=_random_scorer(5).numba()), episode, clustering=False).labels, ref)
+
+
+def test_lmht_plays_with_its_search_and_its_version_names_what_its_labels_depend_on():
+    agent = make_policy("lmht")
+    assert agent.margin == SEARCH["margin"] and agent.beam == agent.meta.hyperparameters["mht"]["beam"]
+    assert agent.version.endswith(f"/lmht-{FEATURE_VERSION}.{SEARCH_VERSION}/mht-{policy_info('mht').version}")
+    assert make_policy("lmht:margin=1000000").margin == 1e6
 
 
 def test_training_rows_follow_the_truth():

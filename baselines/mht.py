@@ -148,7 +148,9 @@ class Beam(NamedTuple):
 class Scratch(NamedTuple):
     """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead,
     the learned scorer's features), the look-ahead cache per source (last pulse, steps, value; `used`
-    entries), the search stack and the scorer's hidden layer (a parent's part, a candidate's)."""
+    entries), the search stack, the learned scorer's work rows (`hidden`: a parent's hidden-layer sum, a
+    candidate's, the pulse's, a spurious candidate's own terms, and a feature row) and each candidate's
+    log S."""
 
     parent: np.ndarray
     source: np.ndarray

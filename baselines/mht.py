@@ -1237,6 +1237,8 @@ class MHT:
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
         self.n_seen = self.n_labels = 0
+        self.due: list[int] = []  # labels reported or ready to be (`_due`)
+        self.wake = 1  # act calls `_wake` when n_seen reaches this
         self.k = 0  # next pulse to process
         self.called = 0  # pulses seen at the last driver call
         self.ended = False
@@ -1246,28 +1248,44 @@ class MHT:
         # runs once a step (twice a pulse at the default lag): kept lean, the work is in the driver
         if obs["valid"]:
             n = self.n_seen
-            if n == self.toa.size:
-                self.toa = np.concatenate([self.toa, np.zeros(n)])
-                self.labels = np.concatenate([self.labels, np.zeros(n, np.int64)])
             self.toa[n] = obs["toa"][0]
             self.n_seen = n = n + 1
-            # the driver is called every `batch` pulses (its call costs far more than a pulse) or when a
-            # decision is due
-            if n - self.called >= self.batch or n - 1 - self.k >= self.reserve:
-                self._run()
+            if n >= self.wake:
+                self._wake()
         elif not self.ended:
             self.ended = True
             if self.n_seen:
                 self._run()
         t = self.steps - self.lag  # step t labels pulse t - lag
         self.steps += 1
-        if 0 <= t < self.n_labels:
-            if self.identify is not None:
-                # the tracks' identities from all the beam has seen when the first label is due
-                self.perm[:self.n] = self._identities(self.labels[:self.n_labels], self.cur.blk[0], *self.identify)
-                self.identify = None
-            return int(self.perm[self.labels[t]])
-        return 0
+        if t < 0:
+            return 0
+        if t < len(self.due):
+            return self.due[t]
+        return self._due(t)
+
+    def _wake(self) -> None:
+        """The buffer grown when full; the driver called every `batch` pulses (its call costs far more than
+        a pulse) or when a decision is due; `wake` set to the next pulse count needing either."""
+        n = self.n_seen
+        if n == self.toa.size:
+            self.toa = np.concatenate([self.toa, np.zeros(n)])
+            self.labels = np.concatenate([self.labels, np.zeros(n, np.int64)])
+        if n - self.called >= self.batch or n - 1 - self.k >= self.reserve:
+            self._run()
+        self.wake = min(self.toa.size, self.called + self.batch, self.k + 1 + self.reserve)
+
+    def _due(self, t: int) -> int:
+        """Label t once `due` (the reported labels, Python ints: a list index is the cheapest step) lacks it:
+        the labels decided since are appended, the tracks' identities settled first if they are pending."""
+        if t >= self.n_labels:
+            return 0
+        if self.identify is not None:
+            # the tracks' identities from all the beam has seen when the first label is due
+            self.perm[:self.n] = self._identities(self.labels[:self.n_labels], self.cur.blk[0], *self.identify)
+            self.identify = None
+        self.due.extend(self.perm[self.labels[len(self.due):self.n_labels]].tolist())
+        return self.due[t]
 
     def _run(self) -> None:
         self.called = self.n_seen

@@ -131,7 +131,8 @@ def _follow(toa, ok, cur, nxt, zob, prior, w, cfg, net, counts, u, beta, feat, b
             nc += 1
         any_right = False
         top = cur.score[0] + cur.ahead[0]
-        f_sp = mlp(net, w.feat[nc - 1], acc)  # the spurious candidate is the last
+        # one parent: its candidates' feature rows are w.feat[:nc], the spurious candidate's the last
+        f_sp = mlp(net, w.feat[nc - 1], acc)
         for j in range(nc):
             lab = w.source[j] if w.source[j] >= 0 else n
             feat[rows] = w.feat[j]

@@ -146,11 +146,11 @@ class Beam(NamedTuple):
 
 
 class Scratch(NamedTuple):
-    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead,
-    the learned scorer's features), the look-ahead cache per source (last pulse, steps, value; `used`
+    """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead;
+    the learned scorer's features of one parent's candidates, row j - first), the look-ahead cache per source (last pulse, steps, value; `used`
     entries), the search stack, the learned scorer's work rows (`hidden`: a parent's hidden-layer sum, a
-    candidate's, the pulse's, a spurious candidate's own terms, and a feature row) and each candidate's
-    log S."""
+    candidate's, the pulse's, a spurious candidate's own terms, and a feature row), each candidate's
+    log S, and the children's order."""
 
     parent: np.ndarray
     source: np.ndarray
@@ -168,14 +168,16 @@ class Scratch(NamedTuple):
     stack: np.ndarray
     hidden: np.ndarray
     log_s: np.ndarray
+    order: np.ndarray
 
     @classmethod
     def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((c, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
+                   np.zeros(c), np.zeros(c), np.zeros((3 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
-                   np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c))
+                   np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c),
+                   np.zeros(c, np.int64))
 
 
 class Settings(NamedTuple):
@@ -334,7 +336,7 @@ def _pulse_terms(net, w, x_q, x_r, x_n):
 
 @njit(cache=True, nogil=True, inline="always")
 def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
-    """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat,
+    """Features of the candidates lo..hi-1 of one parent (its spurious candidate last) into w.feat[:hi - lo],
     and f(x_j) - f(x_spurious) added to their scores and ranks.  score, ahead: the parent's; arrivals,
     blk: its tracks'; x_q, x_r, x_n: the pulse's features (`_pulse_terms` has summed their terms).  f
     is `mlp` with its first layer summed in parts: the pulse's, the parent's, a candidate's own."""
@@ -346,7 +348,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
     prev = -1  # a track's candidates are consecutive: its own features are computed once
     x_a = x_p = log_t2 = 0.0
     for j in range(lo, hi):
-        x = w.feat[j]
+        x = w.feat[j - lo]
         for f in range(N_FEATURES):
             x[f] = 0.0
         i = w.source[j]
@@ -381,7 +383,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
     h = net.b1.shape[0]
     for u in range(h):
         shared[u] = w.hidden[2, u]
-    _hidden_of(net, _PARENT, w.feat[hi - 1], shared)
+    _hidden_of(net, _PARENT, w.feat[hi - 1 - lo], shared)
     for u in range(h):
         acc[u] = shared[u] + sp[u]
     f_sp = _output(net, acc)
@@ -390,7 +392,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
             continue
         for u in range(h):
             acc[u] = shared[u]
-        _hidden_of(net, _OWN, w.feat[j], acc)
+        _hidden_of(net, _OWN, w.feat[j - lo], acc)
         f = _output(net, acc) - f_sp
         w.score[j] += f
         w.rank[j] += f
@@ -399,6 +401,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
 _INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
+_INSERTION = 64  # children sorted by insertion up to this many candidates, else by argsort
 # the prior-consistency test (`MHT._vet`)
 _VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are not tested
 _VET_SLACK = 0.1  # unexplained pulses allowed beyond the spurious rate, and the gain a restart must bring
@@ -905,7 +908,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
             # and is back with a phase uniform over its period, its period from the prior
             # (counted with the longest plausible period: a period still unknown restarts nothing)
-            if y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)):
+            if y - tau >= (cfg.dead + 1.0) * t and y - tau >= (cfg.dead + 1.0) * (t + 4.0 * math.sqrt(ptt)):
                 hv = 0.0
                 found = False
                 for q in range(w.used[i]):
@@ -941,20 +944,39 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
     for j in range(1, nc):
         top = max(top, w.rank[j])
     floor = top - cfg.margin
-    near = np.empty(nc, np.int64)
+    order = w.order
     m = 0
-    for j in range(nc):
-        if not w.rank[j] < floor:
-            near[m] = j
+    if nc <= _INSERTION:
+        # by insertion into the work row: no allocation (argsort's arrays cost more than the sort here)
+        for j in range(nc):
+            r = w.rank[j]
+            if r < floor:
+                continue
+            p = m
+            if r == r:  # not NaN: before every NaN and every lower rank
+                while p > 0:
+                    q = w.rank[order[p - 1]]
+                    if q == q and not r > q:
+                        break
+                    order[p] = order[p - 1]
+                    p -= 1
+            order[p] = j
             m += 1
-    near = near[:m]
-    order = near[np.argsort(-w.rank[near], kind="mergesort")]
+    else:
+        near = np.empty(nc, np.int64)
+        for j in range(nc):
+            if not w.rank[j] < floor:
+                near[m] = j
+                m += 1
+        near = near[:m]
+        order[:m] = near[np.argsort(-w.rank[near], kind="mergesort")]
     slot = k % ring
     mask = zob.shape[1] - 1
     out = 0
-    for j in order:
+    for pos in range(m):
         if out == width:
             break
+        j = order[pos]
         b = w.parent[j]
         i = w.source[j]
         h = c.key[b]
@@ -1126,6 +1148,13 @@ def _count(counts, label, missed, n):
         counts[1] += missed
 
 
+# Work arrays of finished policies by shape, for the next reset: fresh ones cost their page faults anew
+# every episode (~0.3 ms for a 256-hypothesis start beam of 3 sources: 0.3 us a pulse of a 1000-pulse
+# episode, more than the act calls)
+_SPARE: dict[tuple[int, ...], list[tuple[Beam, Beam, Scratch]]] = {}
+_SPARE_MAX = 2
+
+
 @functools.lru_cache(maxsize=64)
 def _zobrist(n: int) -> np.ndarray:
     """The Zobrist keys (per source, 2^_HASH_BITS random words), the same for every episode: made once
@@ -1150,13 +1179,14 @@ class MHT:
     (the joint start buffers this many periods of the longest source; each pulse chain it judges has
     at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
     many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
-    clearly; inf: the fixed beam only).  `scorer`: a learned correction of the
+    clearly; inf: the fixed beam only), `per_source` (at most this many hypotheses per source are kept,
+    rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
-                 scorer: Scorer | None = None):
+                 per_source: float = math.inf, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1180,6 +1210,9 @@ class MHT:
         if not margin > 0:
             raise ValueError(f"margin={margin!r} must be > 0 (inf: no score threshold)")
         self.margin = float(margin)
+        if not per_source > 0:
+            raise ValueError(f"per_source={per_source!r} must be > 0 (inf: `beam` whatever the number of sources)")
+        self.per_source = float(per_source)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1194,13 +1227,9 @@ class MHT:
         b = prior_block(Priors(n_labels=n, period=priors.period, phase=phase, period_std=priors.period_std,
                                phase_std=phase_std))
         self.prior = np.ascontiguousarray(np.stack(list(b), axis=-1))
-        ring = self.nscan + 1
-        cap = self.start_beam
-        self.cur, self.nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
+        self.cur, self.nxt, self.scratch = self._work_arrays()
         self.cur.blk[0] = self.prior
         self.size = 1
-        # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
-        self.scratch = Scratch.empty(cap * (3 * n + 1), n, max(self.look, self.look_start), self.net.b1.shape[0])
         self.zob = _zobrist(n)
         # the key of "no pulse yet": every source's entry for last = -1 (index mask)
         self.cur.key[0] = np.bitwise_xor.reduce(self.zob[:, -1])
@@ -1224,7 +1253,8 @@ class MHT:
             horizon_start=(max(self.look_start, self.look_init if initiate else 0) + 0.5) * t_max * 1.05
             + 4.0 * float(np.max(phase_std)),
             horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
-            beam=self.beam, start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
+            beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
+            start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
             margin=self.margin)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
@@ -1243,6 +1273,39 @@ class MHT:
         self.called = 0  # pulses seen at the last driver call
         self.ended = False
         self.steps = 0
+
+    def _work_arrays(self) -> tuple[Beam, Beam, Scratch]:
+        """The two beams and the scratch for this episode: this policy's own or a finished one's of the same
+        shape (`_SPARE`), cleared to what fresh ones hold, else fresh ones."""
+        cap, n, ring = self.start_beam, self.n, self.nscan + 1
+        look, hidden = max(self.look, self.look_start), self.net.b1.shape[0]
+        key = (cap, n, ring, look, hidden)
+        spare = _SPARE.get(key)
+        if getattr(self, "work_key", None) == key:
+            work = self.cur, self.nxt, self.scratch
+        elif spare:
+            work = spare.pop()
+        else:
+            self.work_key = key
+            # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
+            return (Beam.empty(cap, n, ring), Beam.empty(cap, n, ring),
+                    Scratch.empty(cap * (3 * n + 1), n, look, hidden))
+        self.work_key = key
+        for arrays in work:
+            for a in arrays:
+                a.fill(0)
+        work[0].last.fill(-1)
+        work[1].last.fill(-1)
+        return work
+
+    def __del__(self) -> None:
+        # its work arrays go to the next policy of this shape (at most _SPARE_MAX sets are kept per shape)
+        key = getattr(self, "work_key", None)
+        if key is not None:
+            spare = _SPARE.setdefault(key, [])
+            # (a shallow copy of a policy shares its arrays: they are handed on once)
+            if len(spare) < _SPARE_MAX and not any(w[0] is self.cur for w in spare):
+                spare.append((self.cur, self.nxt, self.scratch))
 
     def act(self, obs: dict[str, Any]) -> int:
         # runs once a step (twice a pulse at the default lag): kept lean, the work is in the driver

@@ -27,6 +27,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import math
+import weakref
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol, Sequence, runtime_checkable
@@ -251,7 +252,11 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
     bound method, so the policy stays itself: its type, attributes and `act` are untouched.)"""
     if set(info.modes) == set(MODES):
         return
-    reset = policy.reset
+    # the wrapper holds the bound method weakly: a strong one would make a reference cycle (policy ->
+    # wrapper -> method -> policy), and the policy, its work arrays with it, would outlive its episode until
+    # the cyclic garbage collector ran
+    bound = policy.reset
+    method = weakref.WeakMethod(bound) if inspect.ismethod(bound) else lambda: bound
 
     def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
         mode = "blind" if priors.blind else "anchored"
@@ -259,7 +264,7 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
             why = ("needs priors: it plays anchored scenarios only, and blind scenarios have none" if mode == "blind"
                    else "plays blind scenarios only: it clusters pulses and has no prior tracks")
             raise NotApplicable(f"policy {info.name!r} {why}")
-        reset(priors, episode_info)
+        method()(priors, episode_info)
 
     policy.reset = checked_reset  # type: ignore[method-assign]
 

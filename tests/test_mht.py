@@ -229,8 +229,52 @@ def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
     assert np.mean(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=10") == fixed) > 0.99
 
 
+def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
+    """`per_source` keeps at most that many hypotheses per source (rounded up) within `beam`, once the
+    start (its own `start_beam`) is over: on three sources per_source=1.5 is beam 5."""
+    rng = np.random.default_rng(12)
+    periods = (7.3, 11.9, 17.1)
+    toa, src = generate(rng, periods, 120, pri_jitter=0.1, toa_jitter=0.3, missing=0.1, spurious=0.1)
+    phases = [float(toa[src == i][0]) for i in range(3)]
+    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    five = label_file(tmp_path, pulses, priors, "mht:beam=5")
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,per_source=1.5"), five)
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=5,per_source=100"), five)
+    ep_priors = Priors(n_labels=3, period=np.array(periods), phase=np.array(phases), period_std=np.full(3, 0.05),
+                       phase_std=np.full(3, 0.5))
+    most = {}
+    for per_source in (math.inf, 1.5):
+        agent = mht_module.MHT(beam=16, batch=1, per_source=per_source)
+        agent.reset(ep_priors, {})
+        sizes = []
+        for t in toa:
+            agent.act({"toa": np.array([t]), "valid": np.int64(1)})
+            if t > agent.cfg.start_until + agent.cfg.horizon_start:
+                sizes.append(agent.size)
+        most[per_source] = max(sizes)
+    assert most[1.5] <= 5 < most[math.inf], most
+
+
+def test_mht_hands_its_work_arrays_to_the_next_policy():
+    """A finished policy's beams and scratch go to the next policy of their shape (fresh ones cost their
+    page faults anew each episode), cleared to what fresh ones hold: the same labels."""
+    spec = ScenarioSpec(name="mht-reuse", n_pulses=300, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
+                        sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
+                        priors=PriorSpec(period_error=0.01, phase_error=0.05))
+    mht_module._SPARE.clear()
+    fresh = play(make_policy("mht"), simulate(spec, 2)).labels
+    first = make_policy("mht")
+    play(first, simulate(spec, 1))  # its arrays (the first policy's, handed on) now hold another episode
+    arrays = first.cur
+    del first
+    second = make_policy("mht")
+    np.testing.assert_array_equal(play(second, simulate(spec, 2)).labels, fresh)
+    assert second.cur is arrays
+
+
 def test_mht_rejects_bad_parameters():
-    for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0"):
+    for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
+               "per_source=0"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

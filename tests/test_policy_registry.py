@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import sys
 import tomllib
+import weakref
 from pathlib import Path
 
 import pytest
@@ -122,6 +124,20 @@ def test_modes_are_checked_once_from_the_registry():
     fdp = make_policy("fdp")
     assert type(fdp) is FDP  # the policy stays itself
     make_policy("random").reset(blind, {"policy_seed": 0})  # plays both modes
+
+
+def test_the_modes_check_leaves_no_reference_cycle():
+    """A policy is freed when its last reference goes (its work arrays with it), not only when the cyclic
+    garbage collector runs: the check's wrapper does not hold the policy."""
+    gc.disable()
+    try:
+        policy = make_policy("fdp")
+        policy.reset(Priors.from_json_dict({"period": [1.0, 2.0]}), {})
+        ref = weakref.ref(policy)
+        del policy
+        assert ref() is None
+    finally:
+        gc.enable()
 
 
 @pytest.mark.parametrize("spec, expected", [

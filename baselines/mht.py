@@ -150,7 +150,7 @@ class Scratch(NamedTuple):
     the learned scorer's features of one parent's candidates, row j - first), the look-ahead cache per source (last pulse, steps, value; `used`
     entries), the search stack, the learned scorer's work rows (`hidden`: a parent's hidden-layer sum, a
     candidate's, the pulse's, a spurious candidate's own terms, and a feature row), each candidate's
-    log S, and the children's order."""
+    log S, the children's order, and the look-ahead's pulse order."""
 
     parent: np.ndarray
     source: np.ndarray
@@ -169,6 +169,7 @@ class Scratch(NamedTuple):
     hidden: np.ndarray
     log_s: np.ndarray
     order: np.ndarray
+    branch: np.ndarray
 
     @classmethod
     def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
@@ -177,7 +178,7 @@ class Scratch(NamedTuple):
                    np.zeros(c), np.zeros(c), np.zeros((3 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
                    np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c),
-                   np.zeros(c, np.int64))
+                   np.zeros(c, np.int64), np.zeros(_BRANCH, np.int64))
 
 
 class Settings(NamedTuple):
@@ -410,12 +411,12 @@ _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies 
 
 
 @njit(cache=True, nogil=True)
-def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st):
+def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st, order):
     """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
     block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
     (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
     An arrival beyond the buffer ends the search (nothing known yet).  Depth-first with the explicit
-    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth)."""
+    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth); `order`: (_BRANCH,) work row."""
     if look <= 0:
         return 0.0
     newest = toa[n_seen - 1]
@@ -425,7 +426,6 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
     st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
     st[0, 5], st[0, 6], st[0, 7] = 1.0, 0.0, 0.0
     top = 1
-    order = np.empty(_BRANCH, np.int64)
     best = -1e300
     while top > 0:
         top -= 1
@@ -889,7 +889,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                     g, r_s = e / s, jitter_var / s
                     hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s,
                                  p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var, interval_var, log_q, log_1mq,
-                                 w.stack)
+                                 w.stack, w.branch)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
@@ -919,7 +919,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 if not found:
                     rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
                     hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_start,
-                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack)
+                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack, w.branch)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv

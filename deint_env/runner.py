@@ -30,7 +30,7 @@ import time
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
@@ -192,13 +192,36 @@ def fault_record(job: Job, error: str) -> EpisodeRecord:
     return _record(job, spec, lag=None, n_sources=simulate(spec, job.seed).truth.n_sources, fault=error)
 
 
+# The policy specs this process has played.  A compiled (numba) policy's first play in a process loads
+# its kernels from the cache, or compiles them: ~0.5 s that would be timed as that episode's (500 us a
+# pulse on a 1000-pulse episode, more than the policy's own time over a whole board), so each spec plays
+# a short untimed episode of the same scenario first.
+_WARMED: set[str] = set()
+_WARM_PULSES = 200
+
+
+def _warm_up(job: Job, spec: ScenarioSpec) -> None:
+    """The untimed first play of `job.policy` in this process (see _WARMED).  Its result is never used, so
+    its failure is not the job's: the timed play that follows meets any fault of the policy itself."""
+    if job.policy in _WARMED:
+        return
+    _WARMED.add(job.policy)
+    try:
+        short = simulate(replace(spec, n_pulses=min(spec.n_pulses, _WARM_PULSES)), job.seed)
+        play(make_policy(job.policy), short, policy_seed=job.seed, oracle=is_oracle(job.policy), clustering=False)
+    except Exception:  # noqa: BLE001 -- its outcome is discarded (docstring)
+        pass
+
+
 def run_job(job: Job) -> EpisodeRecord:
     """Play one job and return its record.  A policy's exception (or a bad label) is its fault on this
-    episode: recorded, not raised."""
+    episode: recorded, not raised.  The time recorded is the policy's compute time (`play`), after a
+    warm-up play in a process that has not played the policy yet (`_warm_up`)."""
     spec = ScenarioSpec.from_dict(job.scenario)
     episode = simulate(spec, job.seed)
     n_sources = episode.truth.n_sources
     lag = None
+    _warm_up(job, spec)
     try:
         policy = make_policy(job.policy)
         lag = policy.lag

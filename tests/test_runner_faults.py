@@ -90,6 +90,39 @@ def test_numpy_integers_are_labels(monkeypatch):
         assert all(r.fault is None for r in recs)
 
 
+class ShortFails(RandomPolicy):
+    """Random labels, but refuses episodes of at most 200 pulses (a warm-up's)."""
+
+    def reset(self, priors, info):
+        if info["n_pulses"] <= 200:
+            raise ZeroDivisionError("a short episode")
+        super().reset(priors, info)
+
+
+def test_a_policy_warms_up_untimed_once_per_process(monkeypatch):
+    """A policy's first job in a process plays a short episode of the same scenario untimed before its
+    timed one (a compiled policy's kernels load then, not on the clock), once per spec; a failed warm-up
+    is not the job's fault."""
+    lengths = []
+
+    def spy(policy, episode, **kw):
+        lengths.append(len(episode))
+        return play(policy, episode, **kw)
+
+    play = runner.play
+    monkeypatch.setattr(runner, "play", spy)
+    monkeypatch.setattr(runner, "_WARMED", set())
+    policies.list_policies()
+    monkeypatch.setitem(policies._REGISTRY, "short-fails", PolicyInfo("short-fails", ShortFails))
+    for name in ("random", "short-fails"):
+        lengths.clear()
+        recs = runner.evaluate([name], TARGET, max_seeds=2, progress=False)
+        assert lengths == [200, 500, 500]
+        assert all(r.fault is None for r in recs)
+    runner.evaluate(["random"], TARGET, max_seeds=1, progress=False)
+    assert lengths == [200, 500, 500, 500]
+
+
 def test_a_rerun_retries_faults(tmp_path, monkeypatch, capsys):
     register(monkeypatch, "raise")
     out = tmp_path / "res.jsonl"

@@ -44,7 +44,7 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Restart (MK94 VI-C-3's dropouts and onsets).  A track silent for `dead` arrivals in a row may
   restart at a pulse: the source was off and is back, log p_gap + log(1/T) (a phase uniform over its
   period), its period kept (or reset to the prior when it has left the prior by more than 2
-  deviations: a captured track), judged by `look_start` arrivals ahead.  A source that
+  deviations: a captured track), judged by `look_restart` (default `look_start`) arrivals ahead.  A source that
   starts late, stops, or was captured by a neighbour at the start is picked up again.
 - Prior-consistency test (`MHT._vet`).  A gated tracker trusts its priors: a prior that is confidently
   wrong (MK94 V-B-2's x_{1|0} = (60, 96) with Sigma = I for true periods (11, 80)) gates out the true
@@ -198,6 +198,7 @@ class Settings(NamedTuple):
     start_beam: int
     nscan: int
     look_start: int  # arrivals looked ahead when a track takes its first pulse
+    look_restart: int  # arrivals looked ahead when a track restarts
     look: int  # and later
     dead: int  # arrivals a track must have missed in a row before it may restart
     reserve: int  # lag - nscan: a pulse this far behind the newest is processed whatever the look-ahead
@@ -918,7 +919,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                         break
                 if not found:
                     rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
-                    hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_start,
+                    hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_restart,
                                  gate2, jitter_var, interval_var, log_q, log_1mq, w.stack, w.branch)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
@@ -1175,7 +1176,8 @@ class MHT:
     must have missed in a row before it may restart), `dense` (tracks are started jointly, `_initiate`,
     when every track's phase is known to within a period and the first arrivals' gates hold this many
     pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8, core-v0 at most ~6, where the
-    beam's own start is as good; 0: whenever the phases are known), `look_init`
+    beam's own start is as good; 0: whenever the phases are known), `look_restart` (arrivals looked
+    ahead to restart a silent track; default `look_start`), `look_init`
     (the joint start buffers this many periods of the longest source; each pulse chain it judges has
     at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
     many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
@@ -1186,7 +1188,7 @@ class MHT:
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
-                 per_source: float = math.inf, scorer: Scorer | None = None):
+                 per_source: float = math.inf, look_restart: int | None = None, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1203,6 +1205,10 @@ class MHT:
         self.beam, self.start_beam, self.nscan, self.lag = beam, max(start_beam, beam), nscan, lag
         self.reserve = lag - nscan
         self.look_start, self.look, self.dead = look_start, look, dead
+        if look_restart is not None and (not isinstance(look_restart, int) or isinstance(look_restart, bool)
+                                         or not 0 <= look_restart <= look_start):
+            raise ValueError(f"look_restart={look_restart!r} must be an integer in [0, look_start={look_start}]")
+        self.look_restart = look_start if look_restart is None else look_restart
         if not dense >= 0:
             raise ValueError(f"dense={dense!r} must be >= 0 (0: always start tracks jointly)")
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
@@ -1254,7 +1260,7 @@ class MHT:
             + 4.0 * float(np.max(phase_std)),
             horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
-            start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
+            start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
             margin=self.margin)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)

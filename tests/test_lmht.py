@@ -52,7 +52,8 @@ def test_a_zero_scorer_is_mht_and_a_random_one_is_not():
 
 def test_lmht_plays_with_its_search_and_its_version_names_what_its_labels_depend_on():
     agent = make_policy("lmht")
-    assert agent.margin == SEARCH["margin"] and agent.beam == agent.meta.hyperparameters["mht"]["beam"]
+    assert agent.beam == agent.meta.hyperparameters["mht"]["beam"]
+    assert all(getattr(agent, k) == v for k, v in SEARCH.items())
     assert agent.version.endswith(f"/lmht-{FEATURE_VERSION}.{SEARCH_VERSION}/mht-{policy_info('mht').version}")
     assert make_policy("lmht:margin=1000000").margin == 1e6
 

@@ -255,6 +255,19 @@ def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
     assert most[1.5] <= 5 < most[math.inf], most
 
 
+def test_mht_look_restart_sets_the_restart_look_ahead(tmp_path):
+    """A restart's look-ahead depth defaults to a first pulse's (`look_start`); set apart, it changes the
+    labels of a file with many missed arrivals (restarts after one, `dead=1`)."""
+    rng = np.random.default_rng(1)
+    periods = (7.3, 11.9, 17.1)
+    toa, src = generate(rng, periods, 150, pri_jitter=0.1, toa_jitter=0.2, missing=0.3, spurious=0.1)
+    phases = [float(toa[src == i][0]) for i in range(3)]
+    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    default = label_file(tmp_path, pulses, priors, "mht:dead=1")
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:dead=1,look_restart=6"), default)
+    assert not np.array_equal(label_file(tmp_path, pulses, priors, "mht:dead=1,look_restart=0"), default)
+
+
 def test_mht_hands_its_work_arrays_to_the_next_policy():
     """A finished policy's beams and scratch go to the next policy of their shape (fresh ones cost their
     page faults anew each episode), cleared to what fresh ones hold: the same labels."""
@@ -274,7 +287,7 @@ def test_mht_hands_its_work_arrays_to_the_next_policy():
 
 def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
-               "per_source=0"):
+               "per_source=0", "look_restart=7", "look_restart=-1", "look_restart=2.5"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

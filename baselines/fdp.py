@@ -453,8 +453,25 @@ class CompiledFDPCore(FDPCore):
         self.started = True
         return _decide(self.surv, self.r, started, ys, not started and self.first_no_predict, self.par, *self.work)
 
+    def decide_all(self, toa: np.ndarray, d: int) -> np.ndarray:
+        """`decide` over every pulse of `toa` in turn, each with the next `d` pulses as its look-ahead (the
+        labels pulse-by-pulse calls give), in one compiled call: a call's own cost is a few us."""
+        labels = np.empty(toa.size, np.int64)
+        _decide_all(self.surv, self.r, self.started, toa, d, self.first_no_predict, self.par, labels, *self.work)
+        self.started = self.started or toa.size > 0
+        return labels
+
     def best_state(self) -> np.ndarray:
         return self.surv[int(np.argmin(self.r))] if self.started else self.surv[0]
+
+
+@njit(cache=True, nogil=True)
+def _decide_all(surv, r, started, toa, d, first_no_predict, par, labels, level0, cost0, c, cost1):
+    end = toa.size
+    for k in range(end):
+        labels[k] = _decide(surv, r, started, toa[k:min(k + d + 1, end)], not started and first_no_predict, par,
+                            level0, cost0, c, cost1)
+        started = True
 
 
 @njit(cache=True, nogil=True)

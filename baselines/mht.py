@@ -1506,10 +1506,7 @@ class MHT:
         that lies on that estimate's grid of arrivals; a track given fewer than 3 pulses keeps its prior."""
         from baselines.fdp import CompiledFDPCore  # here: only a rejected prior needs it
         core = CompiledFDPCore(self.priors, "lookahead", False, "phase", math.inf)
-        end, d = toa.size, 3
-        labels = np.empty(end, np.int64)
-        for k in range(end):
-            labels[k] = core.decide(toa[k:min(k + d + 1, end)])
+        labels = core.decide_all(np.ascontiguousarray(toa), 3)
         state = core.best_state()
         blk = self.prior.copy()
         jv, iv, g2 = self.cfg.jitter_var, self.cfg.interval_var, self.cfg.gate2

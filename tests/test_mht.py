@@ -379,3 +379,21 @@ def test_mht_starts_exchangeable_tracks_from_the_relative_frequencies():
     swapped = mht_module._loglik(toa[:300], np.array([1, 0, 2])[src[:300]], blk, cfg, log_q, log_1mq, log_rho)
     assert right > swapped + 10.0
     assert right == mht_module._loglik.py_func(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
+
+
+@pytest.mark.parametrize("init", ["phase", "mk94"])
+def test_fdp_core_decides_a_window_in_one_call_as_pulse_by_pulse(init):
+    """mht's FDP start (`_fdp_start`) labels its window in one compiled call (`decide_all`): the labels and
+    the final state of FDP's decisions pulse by pulse."""
+    from baselines.fdp import CompiledFDPCore
+
+    spec = ScenarioSpec(name="fdp-window", n_pulses=120, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
+                        sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
+                        priors=PriorSpec(period_error=0.05, phase_error=0.1))
+    ep = simulate(spec, 3)
+    toa = np.ascontiguousarray(ep.toa)
+    one, whole = (CompiledFDPCore(ep.priors, "lookahead", False, init, math.inf) for _ in range(2))
+    by_pulse = [one.decide(toa[k:min(k + 4, toa.size)]) for k in range(toa.size)]
+    np.testing.assert_array_equal(whole.decide_all(toa, 3), by_pulse)
+    np.testing.assert_array_equal(whole.best_state(), one.best_state())
+    assert len(set(by_pulse)) == 3  # every source (FDP gives every pulse to one): not a trivial window

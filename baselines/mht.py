@@ -7,7 +7,8 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Gating.  For every hypothesis and source, the source's next arrival nearest to y is its k-th
   predicted arrival after its last pulse, k = max(1, round((y - tau) / T)); k - 1 arrivals were
   missed (k = 1 is tried too, for a period still uncertain).  The k-step prediction of (2.8) (closed
-  form, cumulative jitter added k times) gives the innovation e and its variance S = H P H' + R
+  form, cumulative jitter added k times; with `drift` > 0 the period's random walk too, `_drift_terms`)
+  gives the innovation e and its variance S = H P H' + R
   (2.15); the source is a candidate only when e^2 <= gate^2 S.  Only gated candidates are scored,
   looked ahead and updated, so the expensive part of a pulse grows with the number of gated
   candidates, not with the number of sources N (the gate test itself is a few flops per source).
@@ -203,6 +204,7 @@ class Settings(NamedTuple):
     initiate: bool  # joint track initiation on the buffered start (`_initiate`)
     look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
     margin: float  # children ranked more than this (nats) below the best are dropped (inf: the beam only)
+    drift: float  # a period's random walk: its change per arrival has deviation drift * T (0: a constant period)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -409,8 +411,19 @@ _VET_LOOK = 256  # at most this many arrivals per chain
 _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies and the window's pulse rate
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _drift_terms(drift, t, m):
+    """A period's random walk in MK94's order (kalman.predict: tau' = tau + T, then T' = T + w, var w = q,
+    q = (drift T)^2 for the current estimate T): what m predictions from a filtered block add to
+    var tau_m, cov(T_m, tau_m) and var T_m.  tau_m = tau + m T + sum_{i<m} (m-1-i) w_i, so
+    var tau_m += q sum_{k<m} k^2 = q (m-1) m (2m-1) / 6,  cov += q (m-1) m / 2,  var T_m += m q.
+    With drift = 0 every term is 0.0, and adding it changes no bit."""
+    q = (drift * t) * (drift * t)
+    return q * ((m - 1.0) * m * (2.0 * m - 1.0) / 6.0), q * ((m - 1.0) * m / 2.0), q * m
+
+
 @njit(cache=True, nogil=True)
-def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st):
+def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, drift, log_q, log_1mq, st):
     """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
     block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
     (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
@@ -431,8 +444,9 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
         top -= 1
         t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
         steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
-        p_tx = ptx + steps * ptt
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+        d_xx, d_tx, d_tt = _drift_terms(drift, t, steps)
+        p_tx = ptx + steps * ptt + d_tx
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + d_xx
         s = p_xx + jitter_var
         pred = tau + steps * t
         half = math.sqrt(gate2 * s)
@@ -466,7 +480,7 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             j = order[r]
             e = toa[j] - pred
             g, r_s = e / s, jitter_var / s
-            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt + d_tt - p_tx * p_tx / s
             st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
             st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
             st[top, 7] = depth + 1.0
@@ -503,7 +517,8 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
         nc = 0
         for m in range(size):
             t, tau, ptt, ptx, pxx, steps = st[m, 0], st[m, 1], st[m, 2], st[m, 3], st[m, 4], st[m, 5]
-            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            d_xx = _drift_terms(cfg.drift, t, steps)[0]
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
             pred = tau + steps * t
             half = math.sqrt(cfg.gate2 * s)
             if d == 0:
@@ -554,13 +569,15 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
                 nst[new, 5] = steps + 1.0
                 npth[new, d] = -1
             else:  # (2.8) `steps` times, then (2.15)
-                s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
-                p_tx = ptx + steps * ptt
+                d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+                s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
+                p_tx = ptx + steps * ptt + d_tx
                 p_xx = s - jv
                 e = toa[jj] - (tau + steps * t)
                 g, r_s = e / s, jv / s
                 nst[new, 0], nst[new, 1] = t + p_tx * g, tau + steps * t + p_xx * g
-                nst[new, 2], nst[new, 3], nst[new, 4], nst[new, 5] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, 1.0
+                nst[new, 2], nst[new, 3] = ptt + d_tt - p_tx * p_tx / s, p_tx * r_s
+                nst[new, 4], nst[new, 5] = p_xx * r_s, 1.0
                 npth[new, d] = jj
             new += 1
         size = new
@@ -800,7 +817,7 @@ def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
         near = max(1.0, np.floor((y - tau) / t + 0.5))
         best, best_steps = -np.inf, 1.0
         for steps in (near, 1.0):
-            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + _drift_terms(cfg.drift, t, steps)[0] + jv
             e = y - (tau + steps * t)
             v = log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
             if steps > 1.0:
@@ -816,12 +833,13 @@ def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
             continue
         total += best
         steps = best_steps
-        s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
-        p_tx = ptx + steps * ptt
+        d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+        s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
+        p_tx = ptx + steps * ptt + d_tx
         p_xx = s - jv
         g, r_s = (y - (tau + steps * t)) / s, jv / s
         b[i, PERIOD], b[i, TAU] = t + p_tx * g, tau + steps * t + p_xx * g
-        b[i, P_TT], b[i, P_TX], b[i, P_XX] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
+        b[i, P_TT], b[i, P_TX], b[i, P_XX] = ptt + d_tt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
     return total
 
 
@@ -864,7 +882,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 if which == 1 and near == 1.0:
                     break
                 steps = near if which == 0 else 1.0
-                s = c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
+                d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+                s = (c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + d_xx
+                     + jitter_var)
                 e = y - (tau + steps * t)
                 if e * e > gate2 * s:
                     continue
@@ -884,12 +904,12 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                         found = True
                         break
                 if not found:
-                    p_tx = ptx + steps * ptt
+                    p_tx = ptx + steps * ptt + d_tx
                     p_xx = s - jitter_var
                     g, r_s = e / s, jitter_var / s
-                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s,
-                                 p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var, interval_var, log_q, log_1mq,
-                                 w.stack)
+                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                 ptt + d_tt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var,
+                                 interval_var, cfg.drift, log_q, log_1mq, w.stack)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
@@ -919,7 +939,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 if not found:
                     rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
                     hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_start,
-                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack)
+                                 gate2, jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv
@@ -1017,8 +1037,10 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             t = c.blk[b, i, PERIOD]
             ptt = c.blk[b, i, P_TT]
             ptx = c.blk[b, i, P_TX]
-            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q
-            p_tx = ptx + steps * ptt
+            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q (the period's
+            # random walk, `_drift_terms`, in Q; w.s[j] holds its var tau term)
+            d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+            p_tx = ptx + steps * ptt + d_tx
             p_xx = w.s[j] - jitter_var
             inv_s = 1.0 / w.s[j]
             g = w.e[j] * inv_s
@@ -1026,7 +1048,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             # (2.15), written as in kalman.update (P R / S: no cancellation)
             x.blk[out, i, PERIOD] = t + p_tx * g
             x.blk[out, i, TAU] = c.blk[b, i, TAU] + steps * t + p_xx * g
-            x.blk[out, i, P_TT] = ptt - p_tx * p_tx * inv_s
+            x.blk[out, i, P_TT] = ptt + d_tt - p_tx * p_tx * inv_s
             x.blk[out, i, P_TX] = p_tx * r_s
             x.blk[out, i, P_XX] = p_xx * r_s
             x.arrivals[out, i] += int(steps)
@@ -1180,13 +1202,15 @@ class MHT:
     at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
     many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
     clearly; inf: the fixed beam only), `per_source` (at most this many hypotheses per source are kept,
-    rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`).  `scorer`: a learned correction of the
+    rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`), `drift`
+    (a period's random walk: the relative deviation of its change per arrival, `_drift_terms`; 0: a
+    constant period, MK94's DLM).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
-                 per_source: float = math.inf, scorer: Scorer | None = None):
+                 per_source: float = math.inf, drift: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1213,6 +1237,9 @@ class MHT:
         if not per_source > 0:
             raise ValueError(f"per_source={per_source!r} must be > 0 (inf: `beam` whatever the number of sources)")
         self.per_source = float(per_source)
+        if not 0.0 <= drift < math.inf:
+            raise ValueError(f"drift={drift!r} must be a finite number >= 0 (0: a constant period)")
+        self.drift = float(drift)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1256,7 +1283,7 @@ class MHT:
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
-            margin=self.margin)
+            margin=self.margin, drift=self.drift)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are

@@ -12,6 +12,11 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
   (2.15); the source is a candidate only when e^2 <= gate^2 S.  Only gated candidates are scored,
   looked ahead and updated, so the expensive part of a pulse grows with the number of gated
   candidates, not with the number of sources N (the gate test itself is a few flops per source).
+- Agile periods (`jump` > 0).  A hit is a candidate twice: as it is (score + log(1 - p)) and with the
+  track's period jumping after it (score + log p, P_TT += (jump T)^2; p = _JUMP_P): a switching DLM
+  whose hypotheses choose when a period moves, so a drifting, sliding or wobulated PRI is followed
+  while a constant one keeps its certainty.  (A random walk on every period, `drift`, follows the
+  agile PRIs too, but lets two tracks of near-equal periods swap where their trains cross.)
 - Scores (proper log-likelihoods, densities per unit time).  "Source i after m = k - 1 misses":
   log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), a
   long run of misses costing at most `log p_gap`.  "Spurious": log rho, rho the intensity of DM89's
@@ -175,7 +180,7 @@ class Scratch(NamedTuple):
     def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((3 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
+                   np.zeros(c), np.zeros(c), np.zeros((5 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
                    np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c),
                    np.zeros(c, np.int64))
@@ -205,6 +210,9 @@ class Settings(NamedTuple):
     look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
     margin: float  # children ranked more than this (nats) below the best are dropped (inf: the beam only)
     drift: float  # a period's random walk: its change per arrival has deviation drift * T (0: a constant period)
+    jump: float  # a period's jump after a hit (probability _JUMP_P): deviation jump * T (0: none)
+    log_jump: float  # log _JUMP_P
+    log_stay: float  # log(1 - _JUMP_P)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -371,8 +379,8 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
                 x[3] = abs(z)
                 x[4] = 0.25 * z * z
                 x[5] = 0.1 * (w.log_s[j] - log_t2)
-                if w.steps[j] > 1.0:
-                    x[6] = math.log(w.steps[j])
+                if w.steps[j] >= 2.0:  # misses (a jump's candidate: steps + 0.5)
+                    x[6] = math.log(math.floor(w.steps[j]))
             x[7] = x_a
             x[8] = _clip3(0.1 * (w.rank[j] - score - ahead - base_sp))
             x[9] = x_p
@@ -403,6 +411,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
 _INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
+_JUMP_P = 0.01  # a period jump's probability per hit (`jump`)
 _INSERTION = 64  # children sorted by insertion up to this many candidates, else by argsort
 # the prior-consistency test (`MHT._vet`)
 _VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are not tested
@@ -925,6 +934,39 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 w.e[nc] = e
                 w.s[nc] = s
                 nc += 1
+                if cfg.jump > 0.0:  # the same hit, the period jumping after it (steps + 0.5 marks it)
+                    qj = (cfg.jump * t) * (cfg.jump * t)
+                    hj = 0.0
+                    found = False
+                    for q in range(w.used[i]):
+                        if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps + 0.5:
+                            hj = w.cache_val[i, q]
+                            found = True
+                            break
+                    if not found:
+                        p_tx = ptx + steps * ptt + d_tx
+                        p_xx = s - jitter_var
+                        g, r_s = e / s, jitter_var / s
+                        hj = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                     ptt + d_tt - p_tx * p_tx / s + qj, p_tx * r_s, p_xx * r_s, depth, gate2,
+                                     jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack)
+                        if w.used[i] < _CACHE:
+                            q = w.used[i]
+                            w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps + 0.5, hj
+                            w.used[i] += 1
+                    base = w.score[nc - 1]
+                    w.score[nc - 1] = base + cfg.log_stay
+                    w.rank[nc - 1] += cfg.log_stay
+                    w.parent[nc] = b
+                    w.source[nc] = i
+                    w.steps[nc] = steps + 0.5
+                    w.score[nc] = base + cfg.log_jump
+                    w.log_s[nc] = ls
+                    w.h[nc] = hj
+                    w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hj
+                    w.e[nc] = e
+                    w.s[nc] = s
+                    nc += 1
             # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
             # and is back with a phase uniform over its period, its period from the prior
             # (counted with the longest plausible period: a period still unknown restarts nothing)
@@ -1033,7 +1075,8 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             x.label[out, slot] = i
             x.missed[out, slot] = 0  # an on/off switch, not misses
         elif i >= 0:
-            steps = w.steps[j]
+            steps = math.floor(w.steps[j])
+            jumped = w.steps[j] != steps
             t = c.blk[b, i, PERIOD]
             ptt = c.blk[b, i, P_TT]
             ptx = c.blk[b, i, P_TX]
@@ -1049,6 +1092,8 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             x.blk[out, i, PERIOD] = t + p_tx * g
             x.blk[out, i, TAU] = c.blk[b, i, TAU] + steps * t + p_xx * g
             x.blk[out, i, P_TT] = ptt + d_tt - p_tx * p_tx * inv_s
+            if jumped:
+                x.blk[out, i, P_TT] += (cfg.jump * t) * (cfg.jump * t)
             x.blk[out, i, P_TX] = p_tx * r_s
             x.blk[out, i, P_XX] = p_xx * r_s
             x.arrivals[out, i] += int(steps)
@@ -1204,13 +1249,16 @@ class MHT:
     clearly; inf: the fixed beam only), `per_source` (at most this many hypotheses per source are kept,
     rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`), `drift`
     (a period's random walk: the relative deviation of its change per arrival, `_drift_terms`; 0: a
-    constant period, MK94's DLM).  `scorer`: a learned correction of the
+    constant period, MK94's DLM; it lets tracks of near-equal periods swap where their trains cross),
+    `jump` (a period jump after a hit, with probability _JUMP_P: its relative deviation; each hit is then
+    a candidate twice, with and without the jump, and the hypotheses choose -- agile PRIs are
+    followed while a constant period stays constant; 0: no jumps).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
-                 per_source: float = math.inf, drift: float = 0.0, scorer: Scorer | None = None):
+                 per_source: float = math.inf, drift: float = 0.0, jump: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1240,6 +1288,9 @@ class MHT:
         if not 0.0 <= drift < math.inf:
             raise ValueError(f"drift={drift!r} must be a finite number >= 0 (0: a constant period)")
         self.drift = float(drift)
+        if not 0.0 <= jump < math.inf:
+            raise ValueError(f"jump={jump!r} must be a finite number >= 0 (0: no period jumps)")
+        self.jump = float(jump)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1283,7 +1334,8 @@ class MHT:
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
-            margin=self.margin, drift=self.drift)
+            margin=self.margin, drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
+            log_stay=math.log1p(-_JUMP_P))
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
@@ -1314,9 +1366,10 @@ class MHT:
             work = spare.pop()
         else:
             self.work_key = key
-            # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
+            # per parent: up to two arrivals (each also with a period jump, `jump`) and a restart per source
+            # (`_step`), and the spurious hypothesis
             return (Beam.empty(cap, n, ring), Beam.empty(cap, n, ring),
-                    Scratch.empty(cap * (3 * n + 1), n, look, hidden))
+                    Scratch.empty(cap * (5 * n + 1), n, look, hidden))
         self.work_key = key
         for arrays in work:
             for a in arrays:

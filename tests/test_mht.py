@@ -292,17 +292,31 @@ def test_mht_drift_follows_a_drifting_period():
     """agile-v0's drifting-alpha sources (periods scaled by alpha each pulse): with drift = 0 the period
     estimate freezes and mht loses them (train seed 0: accuracy 0.73); a random walk of 0.5 % per
     arrival follows them (0.98)."""
+    acc = _agreement("agile-v0", "agile-drifting-alpha", 0, ("mht", "mht:drift=0.005"))
+    assert acc["mht"] < 0.8 and acc["mht:drift=0.005"] > 0.95, acc
+
+
+def _agreement(suite: str, name: str, seed: int, policies: tuple[str, ...]) -> dict[str, float]:
     from deint_env.suites import load_suite
-    entry = next(e for e in load_suite("agile-v0").entries if e.spec.name == "agile-drifting-alpha")
-    episode = simulate(entry.spec, list(entry.train)[0])
-    acc = {d: float(np.mean(np.asarray(play(make_policy(f"mht:drift={d}"), episode).labels) == episode.source))
-           for d in (0.0, 0.005)}
-    assert acc[0.0] < 0.8 and acc[0.005] > 0.95, acc
+    entry = next(e for e in load_suite(suite).entries if e.spec.name == name)
+    assert seed in entry.train
+    episode = simulate(entry.spec, seed)
+    return {p: float(np.mean(np.asarray(play(make_policy(p), episode).labels) == episode.source)) for p in policies}
+
+
+def test_mht_jump_follows_agile_periods_and_keeps_crossing_tracks():
+    """A wobulated PRI (agile-v0, train seed 0): the constant-period DLM loses it (0.76), period jumps
+    follow it (0.98).  Two sources of periods 13.860 and 13.876 whose trains cross (core-v0, train seed
+    5): a random walk on every period (drift = 0.002) lets the tracks swap there (0.38), jumps do not."""
+    acc = _agreement("agile-v0", "agile-wobulated", 0, ("mht", "mht:jump=0.04"))
+    assert acc["mht"] < 0.8 and acc["mht:jump=0.04"] > 0.95, acc
+    acc = _agreement("core-v0", "core-n2-spread1.5-jitter0.05", 5, ("mht", "mht:drift=0.002", "mht:jump=0.04"))
+    assert acc["mht:drift=0.002"] < 0.5 and acc["mht"] > 0.98 and acc["mht:jump=0.04"] > 0.98, acc
 
 
 def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
-               "per_source=0", "drift=-0.01", "drift=inf", "drift=nan"):
+               "per_source=0", "drift=-0.01", "drift=inf", "drift=nan", "jump=-0.1"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

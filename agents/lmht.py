@@ -184,7 +184,7 @@ def candidates(episode, scorer: Scorer, beta: float, rng: np.random.Generator, *
     agent.reset(episode.priors, {})
     toa = np.ascontiguousarray(episode.toa, dtype=np.float64)
     n = episode.n_labels
-    cap = len(episode) * (3 * n + 1)
+    cap = len(episode) * (5 * n + 1)  # per source: two arrivals, each with a period jump, and a restart
     feat, base = np.zeros((cap, N_FEATURES)), np.zeros(cap)
     right, group = np.zeros(cap, np.bool_), np.zeros(cap, np.int64)
     rows = _follow(toa, right_labels(episode), agent.cur, agent.nxt, agent.zob, agent.prior, agent.scratch, agent.cfg,

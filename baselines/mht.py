@@ -7,10 +7,16 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Gating.  For every hypothesis and source, the source's next arrival nearest to y is its k-th
   predicted arrival after its last pulse, k = max(1, round((y - tau) / T)); k - 1 arrivals were
   missed (k = 1 is tried too, for a period still uncertain).  The k-step prediction of (2.8) (closed
-  form, cumulative jitter added k times) gives the innovation e and its variance S = H P H' + R
+  form, cumulative jitter added k times; with `drift` > 0 the period's random walk too, `_drift_terms`)
+  gives the innovation e and its variance S = H P H' + R
   (2.15); the source is a candidate only when e^2 <= gate^2 S.  Only gated candidates are scored,
   looked ahead and updated, so the expensive part of a pulse grows with the number of gated
   candidates, not with the number of sources N (the gate test itself is a few flops per source).
+- Agile periods (`jump` > 0).  A hit is a candidate twice: as it is (score + log(1 - p)) and with the
+  track's period jumping after it (score + log p, P_TT += (jump T)^2; p = _JUMP_P): a switching DLM
+  whose hypotheses choose when a period moves, so a drifting, sliding or wobulated PRI is followed
+  while a constant one keeps its certainty.  (A random walk on every period, `drift`, follows the
+  agile PRIs too, but lets two tracks of near-equal periods swap where their trains cross.)
 - Scores (proper log-likelihoods, densities per unit time).  "Source i after m = k - 1 misses":
   log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), a
   long run of misses costing at most `log p_gap`.  "Spurious": log rho, rho the intensity of DM89's
@@ -175,7 +181,7 @@ class Scratch(NamedTuple):
     def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
         c = candidates
         return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((3 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
+                   np.zeros(c), np.zeros(c), np.zeros((5 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
                    np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
                    np.zeros((look * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c),
                    np.zeros(c, np.int64), np.zeros(_BRANCH, np.int64))
@@ -205,6 +211,10 @@ class Settings(NamedTuple):
     initiate: bool  # joint track initiation on the buffered start (`_initiate`)
     look_init: int  # and the arrivals its pulse chains look ahead (at least: a chain covers the buffer)
     margin: float  # children ranked more than this (nats) below the best are dropped (inf: the beam only)
+    drift: float  # a period's random walk: its change per arrival has deviation drift * T (0: a constant period)
+    jump: float  # a period's jump after a hit (probability _JUMP_P): deviation jump * T (0: none)
+    log_jump: float  # log _JUMP_P
+    log_stay: float  # log(1 - _JUMP_P)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -371,8 +381,8 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
                 x[3] = abs(z)
                 x[4] = 0.25 * z * z
                 x[5] = 0.1 * (w.log_s[j] - log_t2)
-                if w.steps[j] > 1.0:
-                    x[6] = math.log(w.steps[j])
+                if w.steps[j] >= 2.0:  # misses (a jump's candidate: steps + 0.5)
+                    x[6] = math.log(math.floor(w.steps[j]))
             x[7] = x_a
             x[8] = _clip3(0.1 * (w.rank[j] - score - ahead - base_sp))
             x[9] = x_p
@@ -403,6 +413,7 @@ def _learned(net, w, lo, hi, score, ahead, arrivals, blk, x_q, x_r, x_n):
 _BRANCH = 3  # look-ahead: pulses tried per arrival (a window around the predicted arrival)
 _INIT_BEAM, _INIT_BRANCH = 8, 5  # initiation: partial pulse chains kept per arrival, pulses tried per arrival
 _CACHE = 8  # look-ahead values cached per source and pulse
+_JUMP_P = 0.01  # a period jump's probability per hit (`jump`)
 _INSERTION = 64  # children sorted by insertion up to this many candidates, else by argsort
 # the prior-consistency test (`MHT._vet`)
 _VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are not tested
@@ -411,8 +422,20 @@ _VET_LOOK = 256  # at most this many arrivals per chain
 _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies and the window's pulse rate
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _drift_terms(drift, t, m):
+    """A period's random walk in MK94's order (kalman.predict: tau' = tau + T, then T' = T + w, var w = q,
+    q = (drift T)^2 for the current estimate T): what m predictions from a filtered block add to
+    var tau_m, cov(T_m, tau_m) and var T_m.  tau_m = tau + m T + sum_{i<m} (m-1-i) w_i, so
+    var tau_m += q sum_{k<m} k^2 = q (m-1) m (2m-1) / 6,  cov += q (m-1) m / 2,  var T_m += m q.
+    With drift = 0 every term is 0.0, and adding it changes no bit."""
+    q = (drift * t) * (drift * t)
+    return q * ((m - 1.0) * m * (2.0 * m - 1.0) / 6.0), q * ((m - 1.0) * m / 2.0), q * m
+
+
 @njit(cache=True, nogil=True)
-def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, log_q, log_1mq, st, order):
+def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, drift, log_q, log_1mq, st,
+            order):
     """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
     block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
     (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
@@ -432,8 +455,9 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
         top -= 1
         t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
         steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
-        p_tx = ptx + steps * ptt
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var
+        d_xx, d_tx, d_tt = _drift_terms(drift, t, steps)
+        p_tx = ptx + steps * ptt + d_tx
+        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + d_xx
         s = p_xx + jitter_var
         pred = tau + steps * t
         half = math.sqrt(gate2 * s)
@@ -467,7 +491,7 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
             j = order[r]
             e = toa[j] - pred
             g, r_s = e / s, jitter_var / s
-            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
+            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt + d_tt - p_tx * p_tx / s
             st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
             st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
             st[top, 7] = depth + 1.0
@@ -504,7 +528,8 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
         nc = 0
         for m in range(size):
             t, tau, ptt, ptx, pxx, steps = st[m, 0], st[m, 1], st[m, 2], st[m, 3], st[m, 4], st[m, 5]
-            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            d_xx = _drift_terms(cfg.drift, t, steps)[0]
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
             pred = tau + steps * t
             half = math.sqrt(cfg.gate2 * s)
             if d == 0:
@@ -555,13 +580,15 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
                 nst[new, 5] = steps + 1.0
                 npth[new, d] = -1
             else:  # (2.8) `steps` times, then (2.15)
-                s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
-                p_tx = ptx + steps * ptt
+                d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+                s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
+                p_tx = ptx + steps * ptt + d_tx
                 p_xx = s - jv
                 e = toa[jj] - (tau + steps * t)
                 g, r_s = e / s, jv / s
                 nst[new, 0], nst[new, 1] = t + p_tx * g, tau + steps * t + p_xx * g
-                nst[new, 2], nst[new, 3], nst[new, 4], nst[new, 5] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, 1.0
+                nst[new, 2], nst[new, 3] = ptt + d_tt - p_tx * p_tx / s, p_tx * r_s
+                nst[new, 4], nst[new, 5] = p_xx * r_s, 1.0
                 npth[new, d] = jj
             new += 1
         size = new
@@ -801,7 +828,7 @@ def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
         near = max(1.0, np.floor((y - tau) / t + 0.5))
         best, best_steps = -np.inf, 1.0
         for steps in (near, 1.0):
-            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
+            s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + _drift_terms(cfg.drift, t, steps)[0] + jv
             e = y - (tau + steps * t)
             v = log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
             if steps > 1.0:
@@ -817,12 +844,13 @@ def _loglik(toa, labels, blk, cfg, log_q, log_1mq, log_rho):
             continue
         total += best
         steps = best_steps
-        s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + jv
-        p_tx = ptx + steps * ptt
+        d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+        s = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * iv + d_xx + jv
+        p_tx = ptx + steps * ptt + d_tx
         p_xx = s - jv
         g, r_s = (y - (tau + steps * t)) / s, jv / s
         b[i, PERIOD], b[i, TAU] = t + p_tx * g, tau + steps * t + p_xx * g
-        b[i, P_TT], b[i, P_TX], b[i, P_XX] = ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
+        b[i, P_TT], b[i, P_TX], b[i, P_XX] = ptt + d_tt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
     return total
 
 
@@ -865,7 +893,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 if which == 1 and near == 1.0:
                     break
                 steps = near if which == 0 else 1.0
-                s = c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + jitter_var
+                d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+                s = (c.blk[b, i, P_XX] + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + d_xx
+                     + jitter_var)
                 e = y - (tau + steps * t)
                 if e * e > gate2 * s:
                     continue
@@ -885,12 +915,12 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                         found = True
                         break
                 if not found:
-                    p_tx = ptx + steps * ptt
+                    p_tx = ptx + steps * ptt + d_tx
                     p_xx = s - jitter_var
                     g, r_s = e / s, jitter_var / s
-                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt - p_tx * p_tx / s,
-                                 p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var, interval_var, log_q, log_1mq,
-                                 w.stack, w.branch)
+                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                 ptt + d_tt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var,
+                                 interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
@@ -906,6 +936,40 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 w.e[nc] = e
                 w.s[nc] = s
                 nc += 1
+                if cfg.jump > 0.0:  # the same hit, the period jumping after it (steps + 0.5 marks it)
+                    qj = (cfg.jump * t) * (cfg.jump * t)
+                    hj = 0.0
+                    found = False
+                    for q in range(w.used[i]):
+                        if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps + 0.5:
+                            hj = w.cache_val[i, q]
+                            found = True
+                            break
+                    if not found:
+                        p_tx = ptx + steps * ptt + d_tx
+                        p_xx = s - jitter_var
+                        g, r_s = e / s, jitter_var / s
+                        hj = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                     ptt + d_tt - p_tx * p_tx / s + qj, p_tx * r_s, p_xx * r_s, depth, gate2,
+                                     jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack,
+                                     w.branch)
+                        if w.used[i] < _CACHE:
+                            q = w.used[i]
+                            w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps + 0.5, hj
+                            w.used[i] += 1
+                    base = w.score[nc - 1]
+                    w.score[nc - 1] = base + cfg.log_stay
+                    w.rank[nc - 1] += cfg.log_stay
+                    w.parent[nc] = b
+                    w.source[nc] = i
+                    w.steps[nc] = steps + 0.5
+                    w.score[nc] = base + cfg.log_jump
+                    w.log_s[nc] = ls
+                    w.h[nc] = hj
+                    w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hj
+                    w.e[nc] = e
+                    w.s[nc] = s
+                    nc += 1
             # a track silent for `dead` arrivals or more may restart here: the source was off (or lost)
             # and is back with a phase uniform over its period, its period from the prior
             # (counted with the longest plausible period: a period still unknown restarts nothing)
@@ -920,7 +984,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 if not found:
                     rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
                     hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_restart,
-                                 gate2, jitter_var, interval_var, log_q, log_1mq, w.stack, w.branch)
+                                 gate2, jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv
@@ -1014,12 +1078,15 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             x.label[out, slot] = i
             x.missed[out, slot] = 0  # an on/off switch, not misses
         elif i >= 0:
-            steps = w.steps[j]
+            steps = math.floor(w.steps[j])
+            jumped = w.steps[j] != steps
             t = c.blk[b, i, PERIOD]
             ptt = c.blk[b, i, P_TT]
             ptx = c.blk[b, i, P_TX]
-            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q
-            p_tx = ptx + steps * ptt
+            # (2.8) applied `steps` times: tau' = tau + steps T, P' = F^steps P F^steps' + Q (the period's
+            # random walk, `_drift_terms`, in Q; w.s[j] holds its var tau term)
+            d_xx, d_tx, d_tt = _drift_terms(cfg.drift, t, steps)
+            p_tx = ptx + steps * ptt + d_tx
             p_xx = w.s[j] - jitter_var
             inv_s = 1.0 / w.s[j]
             g = w.e[j] * inv_s
@@ -1027,7 +1094,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
             # (2.15), written as in kalman.update (P R / S: no cancellation)
             x.blk[out, i, PERIOD] = t + p_tx * g
             x.blk[out, i, TAU] = c.blk[b, i, TAU] + steps * t + p_xx * g
-            x.blk[out, i, P_TT] = ptt - p_tx * p_tx * inv_s
+            x.blk[out, i, P_TT] = ptt + d_tt - p_tx * p_tx * inv_s
+            if jumped:
+                x.blk[out, i, P_TT] += (cfg.jump * t) * (cfg.jump * t)
             x.blk[out, i, P_TX] = p_tx * r_s
             x.blk[out, i, P_XX] = p_xx * r_s
             x.arrivals[out, i] += int(steps)
@@ -1182,13 +1251,19 @@ class MHT:
     at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
     many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
     clearly; inf: the fixed beam only), `per_source` (at most this many hypotheses per source are kept,
-    rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`).  `scorer`: a learned correction of the
+    rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`), `drift`
+    (a period's random walk: the relative deviation of its change per arrival, `_drift_terms`; 0: a
+    constant period, MK94's DLM; it lets tracks of near-equal periods swap where their trains cross),
+    `jump` (a period jump after a hit, with probability _JUMP_P: its relative deviation; each hit is then
+    a candidate twice, with and without the jump, and the hypotheses choose -- agile PRIs are
+    followed while a constant period stays constant; 0: no jumps).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
-                 per_source: float = math.inf, look_restart: int | None = None, scorer: Scorer | None = None):
+                 per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
+                 jump: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1219,6 +1294,12 @@ class MHT:
         if not per_source > 0:
             raise ValueError(f"per_source={per_source!r} must be > 0 (inf: `beam` whatever the number of sources)")
         self.per_source = float(per_source)
+        if not 0.0 <= drift < math.inf:
+            raise ValueError(f"drift={drift!r} must be a finite number >= 0 (0: a constant period)")
+        self.drift = float(drift)
+        if not 0.0 <= jump < math.inf:
+            raise ValueError(f"jump={jump!r} must be a finite number >= 0 (0: no period jumps)")
+        self.jump = float(jump)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1262,7 +1343,8 @@ class MHT:
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
-            margin=self.margin)
+            margin=self.margin, drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
+            log_stay=math.log1p(-_JUMP_P))
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
@@ -1293,9 +1375,10 @@ class MHT:
             work = spare.pop()
         else:
             self.work_key = key
-            # per parent: up to two arrivals and a restart per source (`_step`), and the spurious hypothesis
+            # per parent: up to two arrivals (each also with a period jump, `jump`) and a restart per source
+            # (`_step`), and the spurious hypothesis
             return (Beam.empty(cap, n, ring), Beam.empty(cap, n, ring),
-                    Scratch.empty(cap * (3 * n + 1), n, look, hidden))
+                    Scratch.empty(cap * (5 * n + 1), n, look, hidden))
         self.work_key = key
         for arrays in work:
             for a in arrays:

@@ -15,7 +15,9 @@ source has made (pulses taken plus arrivals missed) and its log-likelihood score
 - Agile periods (`jump` > 0).  A hit is a candidate twice: as it is (score + log(1 - p)) and with the
   track's period jumping after it (score + log p, P_TT += (jump T)^2; p = _JUMP_P): a switching DLM
   whose hypotheses choose when a period moves, so a drifting, sliding or wobulated PRI is followed
-  while a constant one keeps its certainty.  (A random walk on every period, `drift`, follows the
+  while a constant one keeps its certainty.  With `jump_z` a jump may follow only a hit at least that
+  many deviations off (p = 0 after the others): the evidence a period moved, and far fewer candidates.
+  (A random walk on every period, `drift`, follows the
   agile PRIs too, but lets two tracks of near-equal periods swap where their trains cross.)
 - Scores (proper log-likelihoods, densities per unit time).  "Source i after m = k - 1 misses":
   log(1 - q) + m log q + log N(e; 0, S), q the miss probability (an explicit per-arrival miss), a
@@ -215,6 +217,7 @@ class Settings(NamedTuple):
     jump: float  # a period's jump after a hit (probability _JUMP_P): deviation jump * T (0: none)
     log_jump: float  # log _JUMP_P
     log_stay: float  # log(1 - _JUMP_P)
+    jump_z2: float  # a jump is tried after a hit whose e^2 / S is at least this
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -936,7 +939,9 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 w.e[nc] = e
                 w.s[nc] = s
                 nc += 1
-                if cfg.jump > 0.0:  # the same hit, the period jumping after it (steps + 0.5 marks it)
+                # the same hit, the period jumping after it (steps + 0.5 marks it), when the hit deviates by
+                # jump_z deviations or more
+                if cfg.jump > 0.0 and e * e >= cfg.jump_z2 * s:
                     qj = (cfg.jump * t) * (cfg.jump * t)
                     hj = 0.0
                     found = False
@@ -1256,14 +1261,15 @@ class MHT:
     constant period, MK94's DLM; it lets tracks of near-equal periods swap where their trains cross),
     `jump` (a period jump after a hit, with probability _JUMP_P: its relative deviation; each hit is then
     a candidate twice, with and without the jump, and the hypotheses choose -- agile PRIs are
-    followed while a constant period stays constant; 0: no jumps).  `scorer`: a learned correction of the
+    followed while a constant period stays constant; 0: no jumps), `jump_z` (a jump only after a hit
+    |e| >= jump_z sqrt(S); 0: after every hit).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
-                 jump: float = 0.0, scorer: Scorer | None = None):
+                 jump: float = 0.0, jump_z: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1300,6 +1306,9 @@ class MHT:
         if not 0.0 <= jump < math.inf:
             raise ValueError(f"jump={jump!r} must be a finite number >= 0 (0: no period jumps)")
         self.jump = float(jump)
+        if not 0.0 <= jump_z < math.inf:
+            raise ValueError(f"jump_z={jump_z!r} must be a finite number >= 0 (0: a jump may follow every hit)")
+        self.jump_z = float(jump_z)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1344,7 +1353,7 @@ class MHT:
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
             margin=self.margin, drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
-            log_stay=math.log1p(-_JUMP_P))
+            log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are

@@ -327,10 +327,19 @@ def test_mht_jump_follows_agile_periods_and_keeps_crossing_tracks():
     assert acc["mht:drift=0.002"] < 0.5 and acc["mht"] > 0.98 and acc["mht:jump=0.04"] > 0.98, acc
 
 
+def test_mht_jumps_only_after_a_deviating_hit_with_jump_z():
+    """`jump_z`: a period may jump only after a hit at least that many deviations off.  On the wobulated
+    PRI above 2 deviations still follow it (0.93 against 0.76 without jumps); a gate no hit passes is
+    the constant-period tracker exactly."""
+    policies = ("mht", "mht:jump=0.04,jump_z=2", "mht:jump=0.04,jump_z=1e9")
+    acc = _agreement("agile-v0", "agile-wobulated", 0, policies)
+    assert acc["mht:jump=0.04,jump_z=2"] > 0.9 and acc["mht:jump=0.04,jump_z=1e9"] == acc["mht"] < 0.8, acc
+
+
 def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
                "per_source=0", "look_restart=7", "look_restart=-1", "look_restart=2.5", "drift=-0.01", "drift=inf",
-               "drift=nan", "jump=-0.1"):
+               "drift=nan", "jump=-0.1", "jump_z=-1", "jump_z=inf"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

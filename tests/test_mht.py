@@ -204,6 +204,19 @@ def test_mht_compiled_equals_interpreted(monkeypatch, margin):
     np.testing.assert_array_equal(compiled, interpreted)
 
 
+def _beam_sizes(toa, periods, phases, **params) -> tuple[np.ndarray, mht_module.MHT]:
+    """The live hypotheses after each pulse of `toa` (fed one at a time to an mht of beam 16 with
+    `params`, the driver called every pulse), and the agent."""
+    agent = mht_module.MHT(beam=16, batch=1, **params)
+    agent.reset(Priors(n_labels=3, period=np.array(periods), phase=np.array(phases), period_std=np.full(3, 0.05),
+                       phase_std=np.full(3, 0.5)), {})
+    sizes = []
+    for t in toa:
+        agent.act({"toa": np.array([t]), "valid": np.int64(1)})
+        sizes.append(agent.size)
+    return np.array(sizes), agent
+
+
 def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
     """A score margin (an adaptive beam) keeps fewer hypotheses where one leads clearly; a huge one is
     the fixed beam (the same labels); on an easy scene a moderate one loses nothing."""
@@ -214,17 +227,7 @@ def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
     pulses, priors = write_case(tmp_path, toa, periods, phases)
     fixed = label_file(tmp_path, pulses, priors, "mht:beam=16")
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=1e9"), fixed)
-    ep_priors = Priors(n_labels=3, period=np.array(periods), phase=np.array(phases), period_std=np.full(3, 0.05),
-                       phase_std=np.full(3, 0.5))
-    sizes = {}
-    for margin in (math.inf, 10.0):
-        agent = mht_module.MHT(beam=16, batch=1, margin=margin)
-        agent.reset(ep_priors, {})
-        live = []
-        for t in toa:
-            agent.act({"toa": np.array([t]), "valid": np.int64(1)})
-            live.append(agent.size)
-        sizes[margin] = float(np.mean(live))
+    sizes = {m: float(np.mean(_beam_sizes(toa, periods, phases, margin=m)[0])) for m in (math.inf, 10.0)}
     assert sizes[10.0] < 0.5 * sizes[math.inf], sizes
     assert np.mean(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=10") == fixed) > 0.99
 
@@ -240,18 +243,10 @@ def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
     five = label_file(tmp_path, pulses, priors, "mht:beam=5")
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,per_source=1.5"), five)
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=5,per_source=100"), five)
-    ep_priors = Priors(n_labels=3, period=np.array(periods), phase=np.array(phases), period_std=np.full(3, 0.05),
-                       phase_std=np.full(3, 0.5))
     most = {}
     for per_source in (math.inf, 1.5):
-        agent = mht_module.MHT(beam=16, batch=1, per_source=per_source)
-        agent.reset(ep_priors, {})
-        sizes = []
-        for t in toa:
-            agent.act({"toa": np.array([t]), "valid": np.int64(1)})
-            if t > agent.cfg.start_until + agent.cfg.horizon_start:
-                sizes.append(agent.size)
-        most[per_source] = max(sizes)
+        sizes, agent = _beam_sizes(toa, periods, phases, per_source=per_source)
+        most[per_source] = int(sizes[toa > agent.cfg.start_until + agent.cfg.horizon_start].max())
     assert most[1.5] <= 5 < most[math.inf], most
 
 

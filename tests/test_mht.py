@@ -188,17 +188,18 @@ def test_mht_crowded_start_loses_no_source():
         assert np.mean(res.labels[ep.source == i] == i) > 0.5, i
 
 
-@pytest.mark.parametrize("margin", ["", ",margin=8"])
-def test_mht_compiled_equals_interpreted(monkeypatch, margin):
+@pytest.mark.parametrize("search", ["", ",margin=8", ",margin=8,dead=1,look_restart=2,jump=0.04,jump_z=1,drift=0.001"])
+def test_mht_compiled_equals_interpreted(monkeypatch, search):
     """The numba step and the same Python code (`.py_func`) give the same labels."""
     spec = ScenarioSpec(name="mht-small", n_pulses=150, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
                         sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
                         priors=PriorSpec(period_error=0.01, phase_error=0.05))
     ep = simulate(spec, 5)
-    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0" + margin
+    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0" + search
     compiled = play(make_policy(policy), ep).labels
-    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain", "_best_start",
-                 "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained", "_loglik"):
+    for name in ("_step", "_hit_ahead", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain",
+                 "_best_start", "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained",
+                 "_loglik"):
         monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)
     interpreted = play(make_policy(policy), ep).labels
     np.testing.assert_array_equal(compiled, interpreted)

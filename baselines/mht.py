@@ -502,31 +502,6 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
     return best
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _hit_ahead(toa, n_seen, k, w, i, last, steps, t, tau, ptt, ptx, d_tx, d_tt, jump_tt, e, s, depth, cfg, log_q,
-               log_1mq):
-    """The look-ahead (`_future`) of track i (last pulse `last`; its block t, tau, ptt, ptx and the drift
-    terms d_tx, d_tt of `steps` predictions) after taking pulse k, with innovation e of variance s, its
-    period's variance raised by jump_tt after the update (a jump; 0: none).  Cached per source by last
-    pulse and steps (a jump's: steps + 0.5) for this pulse."""
-    key = steps if jump_tt == 0.0 else steps + 0.5
-    for q in range(w.used[i]):
-        if w.cache_last[i, q] == last and w.cache_steps[i, q] == key:
-            return w.cache_val[i, q]
-    jv = cfg.jitter_var
-    p_tx = ptx + steps * ptt + d_tx
-    p_xx = s - jv
-    g, r_s = e / s, jv / s
-    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g, ptt + d_tt - p_tx * p_tx / s + jump_tt,
-                 p_tx * r_s, p_xx * r_s, depth, cfg.gate2, jv, cfg.interval_var, cfg.drift, log_q, log_1mq, w.stack,
-                 w.branch)
-    if w.used[i] < _CACHE:
-        q = w.used[i]
-        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = last, key, hv
-        w.used[i] += 1
-    return hv
-
-
 @njit(cache=True, nogil=True)
 def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
     """Track initiation: the best log-likelihood of a track (prior block `blk`) whose first arrival is
@@ -935,8 +910,24 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 depth = look
                 if c.arrivals[b, i] == 0:
                     depth = cfg.look_start
-                hv = _hit_ahead(toa, n_seen, k, w, i, c.last[b, i], steps, t, tau, ptt, ptx, d_tx, d_tt, 0.0, e, s,
-                                depth, cfg, log_q, log_1mq)
+                hv = 0.0
+                found = False
+                for q in range(w.used[i]):
+                    if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps:
+                        hv = w.cache_val[i, q]
+                        found = True
+                        break
+                if not found:
+                    p_tx = ptx + steps * ptt + d_tx
+                    p_xx = s - jitter_var
+                    g, r_s = e / s, jitter_var / s
+                    hv = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                 ptt + d_tt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s, depth, gate2, jitter_var,
+                                 interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
+                    if w.used[i] < _CACHE:
+                        q = w.used[i]
+                        w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
+                        w.used[i] += 1
                 w.parent[nc] = b
                 w.source[nc] = i
                 w.steps[nc] = steps
@@ -951,9 +942,28 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
                 # the same hit, the period jumping after it (steps + 0.5 marks it), when the hit deviates by
                 # jump_z deviations or more
                 if cfg.jump > 0.0 and e * e >= cfg.jump_z2 * s:
+                    # (the look-ahead's cache and call repeat the hit's above: as a helper function, inlined
+                    # or called, they cost lmht 11-20 % of its time per pulse)
                     qj = (cfg.jump * t) * (cfg.jump * t)
-                    hj = _hit_ahead(toa, n_seen, k, w, i, c.last[b, i], steps, t, tau, ptt, ptx, d_tx, d_tt, qj, e,
-                                    s, depth, cfg, log_q, log_1mq)
+                    hj = 0.0
+                    found = False
+                    for q in range(w.used[i]):
+                        if w.cache_last[i, q] == c.last[b, i] and w.cache_steps[i, q] == steps + 0.5:
+                            hj = w.cache_val[i, q]
+                            found = True
+                            break
+                    if not found:
+                        p_tx = ptx + steps * ptt + d_tx
+                        p_xx = s - jitter_var
+                        g, r_s = e / s, jitter_var / s
+                        hj = _future(toa, n_seen, k, t + p_tx * g, tau + steps * t + p_xx * g,
+                                     ptt + d_tt - p_tx * p_tx / s + qj, p_tx * r_s, p_xx * r_s, depth, gate2,
+                                     jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack,
+                                     w.branch)
+                        if w.used[i] < _CACHE:
+                            q = w.used[i]
+                            w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps + 0.5, hj
+                            w.used[i] += 1
                     base = w.score[nc - 1]
                     w.score[nc - 1] = base + cfg.log_stay
                     w.rank[nc - 1] += cfg.log_stay

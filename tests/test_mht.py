@@ -197,7 +197,7 @@ def test_mht_compiled_equals_interpreted(monkeypatch, search):
     ep = simulate(spec, 5)
     policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0" + search
     compiled = play(make_policy(policy), ep).labels
-    for name in ("_step", "_hit_ahead", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain",
+    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain",
                  "_best_start", "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained",
                  "_loglik"):
         monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)

@@ -192,20 +192,22 @@ def fault_record(job: Job, error: str) -> EpisodeRecord:
     return _record(job, spec, lag=None, n_sources=simulate(spec, job.seed).truth.n_sources, fault=error)
 
 
-# The policy specs this process has played.  A compiled (numba) policy's first play in a process loads
-# its kernels from the cache, or compiles them: ~0.5 s that would be timed as that episode's (500 us a
-# pulse on a 1000-pulse episode, more than the policy's own time over a whole board), so each spec plays
-# a short untimed episode of the same scenario first.
-_WARMED: set[str] = set()
+# The (policy spec, scenario) pairs this process has played.  A compiled (numba) policy's first play in a
+# process loads its kernels from the cache, or compiles them: ~0.5 s (seconds in a fresh clone) that would
+# be timed as that episode's (500 us a pulse on a 1000-pulse episode, more than the policy's own time over
+# a whole board).  Some kernels are first called only by some scenarios (mht's FDP start when priors fail
+# their test), so each spec plays a short untimed episode of each scenario first.
+_WARMED: set[tuple[str, str]] = set()
 _WARM_PULSES = 200
 
 
 def _warm_up(job: Job, spec: ScenarioSpec) -> None:
-    """The untimed first play of `job.policy` in this process (see _WARMED).  Its result is never used, so
-    its failure is not the job's: the timed play that follows meets any fault of the policy itself."""
-    if job.policy in _WARMED:
+    """The untimed first play of `job.policy` on the job's scenario in this process (see _WARMED).  Its
+    result is never used, so its failure is not the job's: the timed play that follows meets any fault of
+    the policy itself."""
+    if (job.policy, spec.name) in _WARMED:
         return
-    _WARMED.add(job.policy)
+    _WARMED.add((job.policy, spec.name))
     try:
         short = simulate(replace(spec, n_pulses=min(spec.n_pulses, _WARM_PULSES)), job.seed)
         play(make_policy(job.policy), short, policy_seed=job.seed, oracle=is_oracle(job.policy), clustering=False)
@@ -216,7 +218,7 @@ def _warm_up(job: Job, spec: ScenarioSpec) -> None:
 def run_job(job: Job) -> EpisodeRecord:
     """Play one job and return its record.  A policy's exception (or a bad label) is its fault on this
     episode: recorded, not raised.  The time recorded is the policy's compute time (`play`), after a
-    warm-up play in a process that has not played the policy yet (`_warm_up`)."""
+    warm-up play in a process that has not played the policy on this scenario yet (`_warm_up`)."""
     spec = ScenarioSpec.from_dict(job.scenario)
     episode = simulate(spec, job.seed)
     n_sources = episode.truth.n_sources

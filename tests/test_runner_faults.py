@@ -100,9 +100,9 @@ class ShortFails(RandomPolicy):
 
 
 def test_a_policy_warms_up_untimed_once_per_process(monkeypatch):
-    """A policy's first job in a process plays a short episode of the same scenario untimed before its
-    timed one (a compiled policy's kernels load then, not on the clock), once per spec; a failed warm-up
-    is not the job's fault."""
+    """A policy's first job on a scenario in a process plays a short episode of that scenario untimed
+    before its timed one (a compiled policy's kernels load then, not on the clock), once per spec and
+    scenario; a failed warm-up is not the job's fault."""
     lengths = []
 
     def spy(policy, episode, **kw):
@@ -121,6 +121,8 @@ def test_a_policy_warms_up_untimed_once_per_process(monkeypatch):
         assert all(r.fault is None for r in recs)
     runner.evaluate(["random"], TARGET, max_seeds=1, progress=False)
     assert lengths == [200, 500, 500, 500]
+    runner.evaluate(["random"], "paper-v0/mk94-two-var0.1", max_seeds=1, progress=False)  # another scenario
+    assert lengths == [200, 500, 500, 500, 200, 500]
 
 
 def test_a_rerun_retries_faults(tmp_path, monkeypatch, capsys):

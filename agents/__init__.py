@@ -23,7 +23,8 @@ POLICIES = (
                description="mht's tracker whose candidate scores carry a trained correction (one small network shared "
                            "by every candidate: agents/lmht.py, agents/checkpoints/lmht-v1.safetensors, trained on "
                            "core-v0 + robust-v0 train seeds; searching with a score margin of 12 nats, 2.5 "
-                           "hypotheses per source, restarts after one missed arrival: agents.lmht.SEARCH; "
+                           "hypotheses per source, restarts after one missed arrival, period jumps after "
+                           "deviating hits: agents.lmht.SEARCH; "
                            "lmht:checkpoint=PATH,beam=B,margin=M,...)"),
     PolicyInfo("dagger", "agents.policy:dagger", kind="learned", modes=("anchored",), extra="rl",
                description="the zoo's DAgger agent (agents/checkpoints/dagger-core-v0-lag3.safetensors): trained on "

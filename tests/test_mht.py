@@ -205,6 +205,16 @@ def test_mht_compiled_equals_interpreted(monkeypatch, search):
     np.testing.assert_array_equal(compiled, interpreted)
 
 
+def _three_sources(tmp_path, seed: int, n_per_source: int, **noise):
+    """Three sources of periods 7.3, 11.9 and 17.1 from the independent generator (`noise`: its jitters and
+    rates), written as a pulse file and priors (each phase the source's first pulse): toa, periods, phases
+    and the two paths."""
+    periods = (7.3, 11.9, 17.1)
+    toa, src = generate(np.random.default_rng(seed), periods, n_per_source, **noise)
+    phases = [float(toa[src == i][0]) for i in range(3)]
+    return (toa, periods, phases, *write_case(tmp_path, toa, periods, phases))
+
+
 def _beam_sizes(toa, periods, phases, **params) -> tuple[np.ndarray, mht_module.MHT]:
     """The live hypotheses after each pulse of `toa` (fed one at a time to an mht of beam 16 with
     `params`, the driver called every pulse), and the agent."""
@@ -221,11 +231,8 @@ def _beam_sizes(toa, periods, phases, **params) -> tuple[np.ndarray, mht_module.
 def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
     """A score margin (an adaptive beam) keeps fewer hypotheses where one leads clearly; a huge one is
     the fixed beam (the same labels); on an easy scene a moderate one loses nothing."""
-    rng = np.random.default_rng(11)
-    periods = (7.3, 11.9, 17.1)
-    toa, src = generate(rng, periods, 120, pri_jitter=0.05, toa_jitter=0.1, missing=0.05, spurious=0.05)
-    phases = [float(toa[src == i][0]) for i in range(3)]
-    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    toa, periods, phases, pulses, priors = _three_sources(tmp_path, 11, 120, pri_jitter=0.05, toa_jitter=0.1,
+                                                          missing=0.05, spurious=0.05)
     fixed = label_file(tmp_path, pulses, priors, "mht:beam=16")
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=1e9"), fixed)
     sizes = {m: float(np.mean(_beam_sizes(toa, periods, phases, margin=m)[0])) for m in (math.inf, 10.0)}
@@ -236,11 +243,8 @@ def test_mht_margin_keeps_fewer_hypotheses_and_the_labels(tmp_path):
 def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
     """`per_source` keeps at most that many hypotheses per source (rounded up) within `beam`, once the
     start (its own `start_beam`) is over: on three sources per_source=1.5 is beam 5."""
-    rng = np.random.default_rng(12)
-    periods = (7.3, 11.9, 17.1)
-    toa, src = generate(rng, periods, 120, pri_jitter=0.1, toa_jitter=0.3, missing=0.1, spurious=0.1)
-    phases = [float(toa[src == i][0]) for i in range(3)]
-    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    toa, periods, phases, pulses, priors = _three_sources(tmp_path, 12, 120, pri_jitter=0.1, toa_jitter=0.3,
+                                                          missing=0.1, spurious=0.1)
     five = label_file(tmp_path, pulses, priors, "mht:beam=5")
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,per_source=1.5"), five)
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=5,per_source=100"), five)
@@ -254,11 +258,8 @@ def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
 def test_mht_look_restart_sets_the_restart_look_ahead(tmp_path):
     """A restart's look-ahead depth defaults to a first pulse's (`look_start`); set apart, it changes the
     labels of a file with many missed arrivals (restarts after one, `dead=1`)."""
-    rng = np.random.default_rng(1)
-    periods = (7.3, 11.9, 17.1)
-    toa, src = generate(rng, periods, 150, pri_jitter=0.1, toa_jitter=0.2, missing=0.3, spurious=0.1)
-    phases = [float(toa[src == i][0]) for i in range(3)]
-    pulses, priors = write_case(tmp_path, toa, periods, phases)
+    _, _, _, pulses, priors = _three_sources(tmp_path, 1, 150, pri_jitter=0.1, toa_jitter=0.2, missing=0.3,
+                                             spurious=0.1)
     default = label_file(tmp_path, pulses, priors, "mht:dead=1")
     np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:dead=1,look_restart=6"), default)
     assert not np.array_equal(label_file(tmp_path, pulses, priors, "mht:dead=1,look_restart=0"), default)

@@ -195,13 +195,15 @@ def fault_record(job: Job, error: str) -> EpisodeRecord:
 # The (policy spec, scenario) pairs this process has played.  A compiled (numba) policy's first play in a
 # process loads its kernels from the cache, or compiles them: ~0.5 s (seconds in a fresh clone) that would
 # be timed as that episode's (500 us a pulse on a 1000-pulse episode, more than the policy's own time over
-# a whole board).  Some kernels are first called only by some scenarios (mht's FDP start when priors fail
-# their test), so each spec plays a short untimed episode of each scenario first.
+# a whole board).  Some kernels are first called only by some episodes (mht's FDP start when priors fail
+# their test), so each spec plays the job's own episode untimed first, once per scenario (an episode of
+# more than _WARM_FULL pulses: its scenario's first _WARM_PULSES, which call nearly all of them).
 _WARMED: set[tuple[str, str]] = set()
+_WARM_FULL = 5000
 _WARM_PULSES = 200
 
 
-def _warm_up(job: Job, spec: ScenarioSpec) -> None:
+def _warm_up(job: Job, spec: ScenarioSpec, episode: Episode) -> None:
     """The untimed first play of `job.policy` on the job's scenario in this process (see _WARMED).  Its
     result is never used, so its failure is not the job's: the timed play that follows meets any fault of
     the policy itself."""
@@ -209,8 +211,8 @@ def _warm_up(job: Job, spec: ScenarioSpec) -> None:
         return
     _WARMED.add((job.policy, spec.name))
     try:
-        short = simulate(replace(spec, n_pulses=min(spec.n_pulses, _WARM_PULSES)), job.seed)
-        play(make_policy(job.policy), short, policy_seed=job.seed, oracle=is_oracle(job.policy), clustering=False)
+        warm = episode if len(episode) <= _WARM_FULL else simulate(replace(spec, n_pulses=_WARM_PULSES), job.seed)
+        play(make_policy(job.policy), warm, policy_seed=job.seed, oracle=is_oracle(job.policy), clustering=False)
     except Exception:  # noqa: BLE001 -- its outcome is discarded (docstring)
         pass
 
@@ -223,7 +225,7 @@ def run_job(job: Job) -> EpisodeRecord:
     episode = simulate(spec, job.seed)
     n_sources = episode.truth.n_sources
     lag = None
-    _warm_up(job, spec)
+    _warm_up(job, spec, episode)
     try:
         policy = make_policy(job.policy)
         lag = policy.lag

@@ -90,19 +90,23 @@ def test_numpy_integers_are_labels(monkeypatch):
         assert all(r.fault is None for r in recs)
 
 
-class ShortFails(RandomPolicy):
-    """Random labels, but refuses episodes of at most 200 pulses (a warm-up's)."""
+class FailsOnce(RandomPolicy):
+    """Random labels, but its first reset in a process raises (a warm-up's, in the test below)."""
+
+    failed = False
 
     def reset(self, priors, info):
-        if info["n_pulses"] <= 200:
-            raise ZeroDivisionError("a short episode")
+        if not FailsOnce.failed:
+            FailsOnce.failed = True
+            raise ZeroDivisionError("the first reset")
         super().reset(priors, info)
 
 
-def test_a_policy_warms_up_untimed_once_per_process(monkeypatch):
-    """A policy's first job on a scenario in a process plays a short episode of that scenario untimed
-    before its timed one (a compiled policy's kernels load then, not on the clock), once per spec and
-    scenario; a failed warm-up is not the job's fault."""
+def test_a_policy_warms_up_untimed_once_per_process_and_scenario(monkeypatch):
+    """A policy's first job on a scenario in a process plays the job's episode untimed before its timed
+    play (a compiled policy's kernels load then, not on the clock), once per spec and scenario; an
+    episode of more than _WARM_FULL pulses warms up on a short one; a failed warm-up is not the job's
+    fault."""
     lengths = []
 
     def spy(policy, episode, **kw):
@@ -112,17 +116,21 @@ def test_a_policy_warms_up_untimed_once_per_process(monkeypatch):
     play = runner.play
     monkeypatch.setattr(runner, "play", spy)
     monkeypatch.setattr(runner, "_WARMED", set())
+    monkeypatch.setattr(FailsOnce, "failed", False)
     policies.list_policies()
-    monkeypatch.setitem(policies._REGISTRY, "short-fails", PolicyInfo("short-fails", ShortFails))
-    for name in ("random", "short-fails"):
+    monkeypatch.setitem(policies._REGISTRY, "fails-once", PolicyInfo("fails-once", FailsOnce))
+    for name in ("random", "fails-once"):
         lengths.clear()
         recs = runner.evaluate([name], TARGET, max_seeds=2, progress=False)
-        assert lengths == [200, 500, 500]
+        assert lengths == [500, 500, 500]
         assert all(r.fault is None for r in recs)
     runner.evaluate(["random"], TARGET, max_seeds=1, progress=False)
-    assert lengths == [200, 500, 500, 500]
+    assert lengths == [500, 500, 500, 500]
     runner.evaluate(["random"], "paper-v0/mk94-two-var0.1", max_seeds=1, progress=False)  # another scenario
-    assert lengths == [200, 500, 500, 500, 200, 500]
+    assert lengths == [500, 500, 500, 500, 500, 500]
+    monkeypatch.setattr(runner, "_WARM_FULL", 400)
+    runner.evaluate(["random"], "paper-v0/mk94-two-var0.25", max_seeds=1, progress=False)
+    assert lengths[-2:] == [runner._WARM_PULSES, 500]
 
 
 def test_a_rerun_retries_faults(tmp_path, monkeypatch, capsys):

@@ -41,8 +41,9 @@ def _offsets(text: str) -> range:
     return range(a, b + 1)
 
 
-def paired_scores(paths: list[str], a: str, b: str, skip: range) -> dict[str, list[tuple[int, float, float]]]:
-    """Per scenario, (seed, score of a, score of b) for every episode both played with a score."""
+def paired_scores(paths: list[str], a: str, b: str, skip: range) -> dict[str, np.ndarray]:
+    """Per scenario, an (episodes, 2) array of a's and b's scores on the episodes both played with a score
+    (in seed order)."""
     scores: dict[tuple[str, str, int], dict[str, float]] = defaultdict(dict)
     seen: set[str] = set()
     train_start: dict[str, int] = {}
@@ -65,13 +66,13 @@ def paired_scores(paths: list[str], a: str, b: str, skip: range) -> dict[str, li
         if p not in seen:
             raise DeintError(f"policy {p!r} has no records in {', '.join(paths)}; they hold: "
                              f"{', '.join(sorted(seen)) or 'none'}")
-    out: dict[str, list[tuple[int, float, float]]] = defaultdict(list)
-    for (name, _, seed), v in sorted(scores.items()):
+    rows: dict[str, list[tuple[float, float]]] = defaultdict(list)
+    for (name, _, _), v in sorted(scores.items()):
         if a in v and b in v:
-            out[name].append((seed, v[a], v[b]))
-    if not out:
+            rows[name].append((v[a], v[b]))
+    if not rows:
         raise DeintError(f"{a} and {b} share no scored episode in {', '.join(paths)}")
-    return out
+    return {name: np.array(r) for name, r in rows.items()}
 
 
 def _mean(x: np.ndarray) -> float:
@@ -82,23 +83,20 @@ def _se(x: np.ndarray) -> float:
     return float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan
 
 
-def report(pairs: dict[str, list[tuple[int, float, float]]], a: str, b: str, rare: float) -> str:
+def report(pairs: dict[str, np.ndarray], a: str, b: str, rare: float) -> str:
     lines = [f"{a} - {b}, normalised score; rare: |difference| > {rare}",
              f"{'scenario':32s} {'n':>5s} {'typical sum':>12s} {'+-':>7s} {'wins/losses':>12s} {'rare':>5s} "
              f"{'rare sum':>9s}"]
-    every = []
-    for name, rows in pairs.items():
-        d = np.array([x - y for _, x, y in rows])
-        every.append(d)
+    for name, ab in pairs.items():
+        d = ab[:, 0] - ab[:, 1]
         big = np.abs(d) > rare
         t = d[~big]
         sd = t.std(ddof=1) * math.sqrt(t.size) if t.size > 1 else math.nan
         lines.append(f"{name:32s} {d.size:5d} {t.sum():+12.4f} {sd:7.4f} {f'{(t > 0).sum()}/{(t < 0).sum()}':>12s} "
                      f"{int(big.sum()):5d} {d[big].sum():+9.4f}")
-    d = np.concatenate(every)
+    ma, mb = np.concatenate(list(pairs.values())).mean(axis=0)
+    d = np.concatenate([ab[:, 0] - ab[:, 1] for ab in pairs.values()])
     big = np.abs(d) > rare
-    ma = np.mean([x for rows in pairs.values() for _, x, _ in rows])
-    mb = np.mean([y for rows in pairs.values() for _, _, y in rows])
     lines += [f"all: {d.size} episodes; {a} {ma:.5f}, {b} {mb:.5f}; difference {_mean(d):+.5f} +- {_se(d):.5f}",
               f"typical: {int((~big).sum())} episodes, {_mean(d[~big]):+.5f} +- {_se(d[~big]):.5f} per episode "
               f"({int((d[~big] > 0).sum())} wins, {int((d[~big] < 0).sum())} losses)",

@@ -123,6 +123,7 @@ _Q_FLOOR = 1e-3  # miss probability floor: a merged or lost pulse stays explaina
 _R_FLOOR = 1e-3  # spurious-rate floor of an estimated (or stated nonzero) rate
 _R_ZERO = 1e-6  # the rate used when the priors state 0: a pulse no track can explain stays spurious
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
+_LEARNED = 3  # counts[_LEARNED] (after the decided hits, misses, spurious pulses): the learned scorer is on
 _HASH_BITS = 12  # Zobrist table: per source, 2^12 entries indexed by the last pulse's index
 _LOG_2PI = math.log(2.0 * math.pi)
 # block fields of the state array (per hypothesis, per source)
@@ -218,6 +219,7 @@ class Settings(NamedTuple):
     log_jump: float  # log _JUMP_P
     log_stay: float  # log(1 - _JUMP_P)
     jump_z2: float  # a jump is tried after a hit whose e^2 / S is at least this
+    misfit: float  # a learned scorer applies once the decided labels reject the stated rates by this (nats)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -867,18 +869,19 @@ def _restart_period(t, ptt, prior_t, prior_tt):
 
 
 @njit(cache=True, nogil=True)
-def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net):
+def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net, learned):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
     track has no good continuation loses at once instead of a period later.  A learned scorer `net`
-    (`Scorer`; none: w1 has no rows) corrects every candidate's score."""
+    (`Scorer`; none: w1 has no rows) corrects every candidate's score if `learned`."""
     y = toa[k]
     n = c.blk.shape[1]
     ring = c.label.shape[1]
     gate2, jitter_var, interval_var = cfg.gate2, cfg.jitter_var, cfg.interval_var
     w.used[:] = 0
     x_q = x_r = x_n = 0.0  # the learned scorer's features of this pulse
-    if net.w1.shape[0] > 0:
+    learned = learned and net.w1.shape[0] > 0
+    if learned:
         x_q, x_r, x_n = 0.2 * log_q, 0.2 * (log_rho - math.log(cfg.pulse_rate)), 0.5 * math.log(n)
         _pulse_terms(net, w, x_q, x_r, x_n)
     nc = 0
@@ -1008,7 +1011,7 @@ def _step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1
         w.score[nc] = c.score[b] + log_rho
         w.rank[nc] = w.score[nc] + c.ahead[b]
         nc += 1
-        if net.w1.shape[0] > 0:
+        if learned:
             _learned(net, w, first, nc, c.score[b], c.ahead[b], c.arrivals[b], c.blk[b], x_q, x_r, x_n)
     # the children within `margin` of the best are sorted (a NaN rank is kept, sorted last, as without a
     # margin); stable: ties keep parent order (deterministic)
@@ -1193,7 +1196,10 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w, net)
+        if counts[_LEARNED] == 0 and _misfit(cfg, counts) >= cfg.misfit:
+            counts[_LEARNED] = 1
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w, net,
+                     counts[_LEARNED] == 1)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:
@@ -1214,6 +1220,29 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
             labels[j] = best.label[0, slot]
         n_labels = n_seen
     return k, size, swapped, n_labels
+
+
+@njit(cache=True, nogil=True)
+def _misfit(cfg, counts):
+    """How strongly the decided labels reject the stated miss and spurious rates (nats; 0 for a rate the
+    priors leave unknown, or for fewer misses or spurious pulses than stated): the log-likelihood ratio of
+    the observed rates against the stated ones (floored as `_rates` floors them), binomial for misses
+    per arrival, Poisson for spurious pulses per arrival.  Merged pulses (missed arrivals), agile
+    sources and lost tracks (misses and spurious pulses) raise it; pulses mht's model describes do not."""
+    a = counts[0] + counts[1]
+    if a == 0:
+        return 0.0
+    out = 0.0
+    m = counts[1]
+    q0 = min(max(cfg.known_q, _Q_FLOOR), 0.9)
+    if not math.isnan(cfg.known_q) and m > q0 * a:
+        p = m / a
+        out += m * math.log(p / q0) + ((a - m) * math.log((1.0 - p) / (1.0 - q0)) if m < a else 0.0)
+    s = counts[2]
+    mu = max(cfg.known_r, _R_FLOOR) * a
+    if not math.isnan(cfg.known_r) and s > mu:
+        out += s * math.log(s / mu) - (s - mu)
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -1265,13 +1294,17 @@ class MHT:
     a candidate twice, with and without the jump, and the hypotheses choose -- agile PRIs are
     followed while a constant period stays constant; 0: no jumps), `jump_z` (a jump only after a hit
     |e| >= jump_z sqrt(S); 0: after every hit).  `scorer`: a learned correction of the
-    candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores."""
+    candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores.  `misfit` (nats):
+    the scorer applies from the first pulse at which the decided labels reject the stated miss and
+    spurious rates by at least this much (`_misfit`), to the episode's end; 0: from the start.  Priors
+    that state merging (a coincidence resolution, which the hand-written likelihood leaves out) have
+    it from the start."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
-                 jump: float = 0.0, jump_z: float = 0.0, scorer: Scorer | None = None):
+                 jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
                             ("dead", dead, 1), ("look_init", look_init, 1)):
@@ -1311,6 +1344,9 @@ class MHT:
         if not 0.0 <= jump_z < math.inf:
             raise ValueError(f"jump_z={jump_z!r} must be a finite number >= 0 (0: a jump may follow every hit)")
         self.jump_z = float(jump_z)
+        if not 0.0 <= misfit < math.inf:
+            raise ValueError(f"misfit={misfit!r} must be a finite number >= 0 (0: the scorer applies from the start)")
+        self.misfit = float(misfit)
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1355,14 +1391,16 @@ class MHT:
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
             margin=self.margin, drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
-            log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2)
+            log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2,
+            misfit=0.0 if priors.coincidence_resolution > 0 else self.misfit)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
         self.vettable = bool(np.all(0.5 * width < p[:, PERIOD]))
         self.perm = np.arange(n + 1)  # the label each track reports (`_identities`); spurious stays n
         self.identify = None  # (periods, variances) the tracks' identities are to be settled by
-        self.counts = np.zeros(3, np.int64)  # decided hits, misses, spurious
+        # decided hits, misses, spurious; whether the learned scorer is on (`_misfit`)
+        self.counts = np.zeros(4, np.int64)
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)
         self.n_seen = self.n_labels = 0

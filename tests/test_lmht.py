@@ -56,6 +56,7 @@ def test_lmht_plays_with_its_search_and_its_version_names_what_its_labels_depend
     assert all(getattr(agent, k) == v for k, v in SEARCH.items())
     assert agent.version.endswith(f"/lmht-{FEATURE_VERSION}.{SEARCH_VERSION}/mht-{policy_info('mht').version}")
     assert make_policy("lmht:margin=1000000").margin == 1e6
+    assert make_policy("lmht:misfit=0").misfit == 0.0
 
 
 def test_training_rows_follow_the_truth():
@@ -106,3 +107,56 @@ def test_deint_train_algo_lmht(tmp_path, capsys):
     assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
                  str(tmp_path / "bad.yml"), "-o", str(tmp_path / "run2"), "--no-progress"]) != 0
     assert "'sedes' is unknown" in capsys.readouterr().err
+
+
+def _settings(scenario: str, **params):
+    """An mht reset on the scenario's priors: its compiled settings (stated rates, misfit)."""
+    agent = MHT(**params)
+    agent.reset(simulate(find_entry(scenario).spec.replace(n_pulses=50), 0).priors, {})
+    return agent.cfg
+
+
+def test_misfit_is_the_likelihood_ratio_of_the_decided_rates_against_the_stated_ones():
+    """Binomial for misses per arrival, Poisson for spurious pulses per arrival (stated rates floored as mht
+    floors them); an observed rate at or below the stated one, or a rate left to estimate, adds nothing."""
+    from scipy.stats import binom, poisson
+
+    from baselines.mht import _R_FLOOR, _Q_FLOOR, _misfit
+
+    stated = _settings("robust-v0/robust-combined")  # q = 0.1, r = 0.1
+    zero = _settings("core-v0/core-n6-spread1.5-jitter0.5")  # q = r = 0: the floors
+    for cfg, q0, r0 in ((stated, 0.1, 0.1), (zero, _Q_FLOOR, _R_FLOOR)):
+        for hits, misses, spurious in ((900, 100, 100), (800, 200, 30), (950, 50, 300), (990, 10, 2), (0, 0, 0)):
+            a = hits + misses
+            want = 0.0
+            if misses > q0 * a:
+                want += binom.logpmf(misses, a, misses / a) - binom.logpmf(misses, a, q0)
+            if spurious > r0 * a:
+                want += poisson.logpmf(spurious, spurious) - poisson.logpmf(spurious, r0 * a)
+            got = _misfit(cfg, np.array([hits, misses, spurious, 0]))
+            assert got == pytest.approx(want, rel=1e-9, abs=1e-9), (q0, hits, misses, spurious)
+    assert _misfit(stated, np.array([800, 200, 300, 0])) > 100  # both rates far above the stated ones
+    assert _misfit(stated, np.array([900, 100, 100, 0])) == 0.0
+    assert _misfit(_settings("robust-v0/robust-combined", rates="estimate"), np.array([800, 200, 300, 0])) == 0.0
+
+
+@pytest.mark.parametrize("scenario, learned", [("robust-v0/robust-spurious0.1", False),
+                                               ("robust-v0/robust-merged0.5", True),
+                                               ("agile-v0/agile-sliding", True)])
+def test_the_learned_correction_waits_for_a_misfit_unless_the_priors_state_merging(scenario, learned):
+    """lmht's labels are mht's search's alone (the scorer off) where mht's model fits; the scorer is on from
+    the start where the priors state merging, and from a misfit on for agile sources; where it is on it
+    changes labels.  The gate is decided per pulse, so the labels do not depend on `batch`."""
+    from baselines.mht import Scorer
+
+    episode = simulate(find_entry(scenario).spec.replace(n_pulses=400), 1)
+    gated = LMHT()
+    labels = play(gated, episode, clustering=False).labels
+    off = LMHT()
+    off.net = Scorer.off()
+    assert gated.counts[3] == int(learned)
+    assert np.array_equal(labels, play(off, episode, clustering=False).labels) != learned
+    # a gate no misfit reaches changes only the scenes where a misfit opened it (stated merging opens it anyway)
+    closed = play(LMHT(misfit=1e6), episode, clustering=False).labels
+    assert np.array_equal(closed, labels) == (scenario != "agile-v0/agile-sliding")
+    assert np.array_equal(play(LMHT(batch=1), episode, clustering=False).labels, labels)

@@ -123,7 +123,9 @@ _Q_FLOOR = 1e-3  # miss probability floor: a merged or lost pulse stays explaina
 _R_FLOOR = 1e-3  # spurious-rate floor of an estimated (or stated nonzero) rate
 _R_ZERO = 1e-6  # the rate used when the priors state 0: a pulse no track can explain stays spurious
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
-_LEARNED = 3  # counts[_LEARNED] (after the decided hits, misses, spurious pulses): the learned scorer is on
+_LEARNED = 3  # counts[_LEARNED] (after the decided hits, misses, spurious pulses): the misfit gate is open
+# mht's own restart and look-ahead depths (its defaults), also those of a closed misfit gate (`misfit`)
+_DEAD, _LOOK = 3, 2
 _HASH_BITS = 12  # Zobrist table: per source, 2^12 entries indexed by the last pulse's index
 _LOG_2PI = math.log(2.0 * math.pi)
 # block fields of the state array (per hypothesis, per source)
@@ -1169,7 +1171,7 @@ def _rates(cfg, counts):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labels, n_labels, net):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, fit, counts, labels, n_labels, net):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
@@ -1198,7 +1200,8 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, counts, labe
             a, b = cur, nxt
         if counts[_LEARNED] == 0 and _misfit(cfg, counts) >= cfg.misfit:
             counts[_LEARNED] = 1
-        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, cfg.look, cfg, log_q, log_1mq, log_rho, w, net,
+        c = cfg if counts[_LEARNED] == 1 else fit  # (`MHT`: `misfit`)
+        size = _step(toa, n_seen, k, size, a, b, zob, prior, width, c.look, c, log_q, log_1mq, log_rho, w, net,
                      counts[_LEARNED] == 1)
         swapped = not swapped
         decided = k - cfg.nscan
@@ -1286,7 +1289,9 @@ class MHT:
     (the joint start buffers this many periods of the longest source; each pulse chain it judges has
     at least this many arrivals and covers the buffered start), `margin` (children ranked more than this
     many nats below the best child are dropped: an adaptive beam, cheaper where one hypothesis leads
-    clearly; inf: the fixed beam only), `per_source` (at most this many hypotheses per source are kept,
+    clearly; inf: the fixed beam only), `margin_per_source` (the margin is at least this many nats per
+    source: a hypothesis's score sums over its tracks, so more sources spread the children's scores
+    wider), `per_source` (at most this many hypotheses per source are kept,
     rounded up, within `beam`: few sources leave fewer ambiguities to carry; inf: `beam`), `drift`
     (a period's random walk: the relative deviation of its change per arrival, `_drift_terms`; 0: a
     constant period, MK94's DLM; it lets tracks of near-equal periods swap where their trains cross),
@@ -1295,14 +1300,17 @@ class MHT:
     followed while a constant period stays constant; 0: no jumps), `jump_z` (a jump only after a hit
     |e| >= jump_z sqrt(S); 0: after every hit).  `scorer`: a learned correction of the
     candidates' scores (`Scorer`, the `lmht` agent); None: the hand-written scores.  `misfit` (nats):
-    the scorer applies from the first pulse at which the decided labels reject the stated miss and
-    spurious rates by at least this much (`_misfit`), to the episode's end; 0: from the start.  Priors
-    that state merging (a coincidence resolution, which the hand-written likelihood leaves out) have
-    it from the start."""
+    the scorer and `dead`, `look`, `look_restart`, `jump` apply from the first pulse at which the
+    decided labels reject the stated miss and spurious rates by at least this much (`_misfit`), to the
+    episode's end; before it, where the model fits, mht's defaults (restarts after 3 silent arrivals
+    judged `look_start` ahead, hits judged 2 ahead, no jumps); 0: from the start.  Priors that state
+    merging (a coincidence resolution, which the hand-written likelihood leaves out) have them from the
+    start."""
 
-    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = 2,
+    def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = _LOOK,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = 3, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
+                 dead: int = _DEAD, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
+                 margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
                  jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
@@ -1332,6 +1340,9 @@ class MHT:
         if not margin > 0:
             raise ValueError(f"margin={margin!r} must be > 0 (inf: no score threshold)")
         self.margin = float(margin)
+        if not 0.0 <= margin_per_source < math.inf:
+            raise ValueError(f"margin_per_source={margin_per_source!r} must be a finite number >= 0 (0: `margin` alone)")
+        self.margin_per_source = float(margin_per_source)
         if not per_source > 0:
             raise ValueError(f"per_source={per_source!r} must be > 0 (inf: `beam` whatever the number of sources)")
         self.per_source = float(per_source)
@@ -1386,13 +1397,15 @@ class MHT:
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
             horizon_start=(max(self.look_start, self.look_init if initiate else 0) + 0.5) * t_max * 1.05
             + 4.0 * float(np.max(phase_std)),
-            horizon=(max(self.look, self.look_start) + 0.5) * t_max * 1.05,
+            horizon=(max(self.look, self.look_start, _LOOK if self.misfit > 0 else 0) + 0.5) * t_max * 1.05,
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
-            margin=self.margin, drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
+            margin=max(self.margin, self.margin_per_source * n), drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
             log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2,
             misfit=0.0 if priors.coincidence_resolution > 0 else self.misfit)
+        # the search while the misfit gate is closed
+        self.fit = self.cfg._replace(dead=_DEAD, look=_LOOK, look_restart=self.look_start, jump=0.0, jump_z2=0.0)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
@@ -1501,7 +1514,7 @@ class MHT:
                 self._vet(end)
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
-            self.scratch, self.cfg, self.counts, self.labels, self.n_labels, self.net)
+            self.scratch, self.cfg, self.fit, self.counts, self.labels, self.n_labels, self.net)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
 
@@ -1571,7 +1584,7 @@ class MHT:
         cur.blk[0] = blk
         cur.key[0] = self.cur.key[0]
         labels = np.zeros(toa.size, np.int64)
-        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.cfg,
+        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.cfg, self.fit,
                                 self.counts.copy(), labels, 0, self.net)
         return labels, (nxt if swapped else cur).blk[0].copy()
 

@@ -52,7 +52,7 @@ def test_a_zero_scorer_is_mht_and_a_random_one_is_not():
 
 def test_lmht_plays_with_its_search_and_its_version_names_what_its_labels_depend_on():
     agent = make_policy("lmht")
-    assert agent.beam == agent.meta.hyperparameters["mht"]["beam"]
+    assert agent.beam == SEARCH["beam"] != agent.meta.hyperparameters["mht"]["beam"]  # SEARCH over training
     assert all(getattr(agent, k) == v for k, v in SEARCH.items())
     assert agent.version.endswith(f"/lmht-{FEATURE_VERSION}.{SEARCH_VERSION}/mht-{policy_info('mht').version}")
     assert make_policy("lmht:margin=1000000").margin == 1e6
@@ -102,7 +102,8 @@ def test_deint_train_algo_lmht(tmp_path, capsys):
     assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
                  str(tmp_path / "hp.yml"), "-o", str(tmp_path / "run"), "--no-progress"]) == 0
     agent = LMHT(checkpoint=str(tmp_path / "run" / "last.safetensors"))
-    assert agent.beam == 4 and agent.meta.timesteps == 2 and agent.meta.train_seeds == [10, 11]
+    assert agent.meta.hyperparameters["mht"]["beam"] == 4 and agent.beam == SEARCH["beam"]  # play: SEARCH's
+    assert agent.meta.timesteps == 2 and agent.meta.train_seeds == [10, 11]
     (tmp_path / "bad.yml").write_text("default:\n  sedes: 1\n")
     assert main(["train", "--algo", "lmht", "--scenario", "core-v0/core-n2-spread4-jitter0.2", "--hyperparams",
                  str(tmp_path / "bad.yml"), "-o", str(tmp_path / "run2"), "--no-progress"]) != 0

@@ -255,6 +255,20 @@ def test_mht_per_source_caps_the_beam_by_the_number_of_sources(tmp_path):
     assert most[1.5] <= 5 < most[math.inf], most
 
 
+def test_mht_margin_per_source_widens_the_margin_with_the_sources(tmp_path):
+    """`margin_per_source` makes the margin at least that many nats per source: on three sources 5 per
+    source is margin 15 (the same labels); below `margin` it changes nothing."""
+    toa, periods, phases, pulses, priors = _three_sources(tmp_path, 11, 120, pri_jitter=0.05, toa_jitter=0.1,
+                                                          missing=0.05, spurious=0.05)
+    fifteen = label_file(tmp_path, pulses, priors, "mht:beam=16,margin=15")
+    assert not np.array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=1"), fifteen)
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=1,margin_per_source=5"),
+                                  fifteen)
+    np.testing.assert_array_equal(label_file(tmp_path, pulses, priors, "mht:beam=16,margin=15,margin_per_source=1"),
+                                  fifteen)
+    assert _beam_sizes(toa, periods, phases, margin=1.0, margin_per_source=5.0)[1].cfg.margin == 15.0
+
+
 def test_mht_look_restart_sets_the_restart_look_ahead(tmp_path):
     """A restart's look-ahead depth defaults to a first pulse's (`look_start`); set apart, it changes the
     labels of a file with many missed arrivals (restarts after one, `dead=1`)."""
@@ -336,7 +350,8 @@ def test_mht_jumps_only_after_a_deviating_hit_with_jump_z():
 def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
                "per_source=0", "look_restart=7", "look_restart=-1", "look_restart=2.5", "drift=-0.01", "drift=inf",
-               "drift=nan", "jump=-0.1", "jump_z=-1", "jump_z=inf"):
+               "drift=nan", "jump=-0.1", "jump_z=-1", "jump_z=inf", "margin_per_source=-1", "margin_per_source=inf",
+               "misfit=-1", "misfit=inf"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

@@ -1227,23 +1227,24 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, fit, counts,
 
 @njit(cache=True, nogil=True)
 def _misfit(cfg, counts):
-    """How strongly the decided labels reject the stated miss and spurious rates (nats; 0 for a rate the
-    priors leave unknown, or for fewer misses or spurious pulses than stated): the log-likelihood ratio of
-    the observed rates against the stated ones (floored as `_rates` floors them), binomial for misses
-    per arrival, Poisson for spurious pulses per arrival.  Merged pulses (missed arrivals), agile
-    sources and lost tracks (misses and spurious pulses) raise it; pulses mht's model describes do not."""
+    """How strongly the decided labels reject the stated miss and spurious rates (nats; 0 for fewer
+    misses or spurious pulses than stated): the log-likelihood ratio of the observed rates against the
+    stated ones (floored as `_rates` floors them; a rate the priors leave unknown is held to the weak
+    prior's mean, 5 %), binomial for misses per arrival, Poisson for spurious pulses per arrival.  Merged
+    pulses (missed arrivals), agile sources and lost tracks (misses and spurious pulses) raise it;
+    pulses mht's model describes do not."""
     a = counts[0] + counts[1]
     if a == 0:
         return 0.0
     out = 0.0
     m = counts[1]
-    q0 = min(max(cfg.known_q, _Q_FLOOR), 0.9)
-    if not math.isnan(cfg.known_q) and m > q0 * a:
+    q0 = _PRIOR_MEAN if math.isnan(cfg.known_q) else min(max(cfg.known_q, _Q_FLOOR), 0.9)
+    if m > q0 * a:
         p = m / a
         out += m * math.log(p / q0) + ((a - m) * math.log((1.0 - p) / (1.0 - q0)) if m < a else 0.0)
     s = counts[2]
-    mu = max(cfg.known_r, _R_FLOOR) * a
-    if not math.isnan(cfg.known_r) and s > mu:
+    mu = (_PRIOR_MEAN if math.isnan(cfg.known_r) else max(cfg.known_r, _R_FLOOR)) * a
+    if s > mu:
         out += s * math.log(s / mu) - (s - mu)
     return out
 

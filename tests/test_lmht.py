@@ -119,14 +119,15 @@ def _settings(scenario: str, **params):
 
 def test_misfit_is_the_likelihood_ratio_of_the_decided_rates_against_the_stated_ones():
     """Binomial for misses per arrival, Poisson for spurious pulses per arrival (stated rates floored as mht
-    floors them); an observed rate at or below the stated one, or a rate left to estimate, adds nothing."""
+    floors them, a rate left to estimate held to 5 %); an observed rate at or below that adds nothing."""
     from scipy.stats import binom, poisson
 
     from baselines.mht import _R_FLOOR, _Q_FLOOR, _misfit
 
     stated = _settings("robust-v0/robust-combined")  # q = 0.1, r = 0.1
     zero = _settings("core-v0/core-n6-spread1.5-jitter0.5")  # q = r = 0: the floors
-    for cfg, q0, r0 in ((stated, 0.1, 0.1), (zero, _Q_FLOOR, _R_FLOOR)):
+    unknown = _settings("robust-v0/robust-combined", rates="estimate")
+    for cfg, q0, r0 in ((stated, 0.1, 0.1), (zero, _Q_FLOOR, _R_FLOOR), (unknown, 0.05, 0.05)):
         for hits, misses, spurious in ((900, 100, 100), (800, 200, 30), (950, 50, 300), (990, 10, 2), (0, 0, 0)):
             a = hits + misses
             want = 0.0
@@ -138,7 +139,7 @@ def test_misfit_is_the_likelihood_ratio_of_the_decided_rates_against_the_stated_
             assert got == pytest.approx(want, rel=1e-9, abs=1e-9), (q0, hits, misses, spurious)
     assert _misfit(stated, np.array([800, 200, 300, 0])) > 100  # both rates far above the stated ones
     assert _misfit(stated, np.array([900, 100, 100, 0])) == 0.0
-    assert _misfit(_settings("robust-v0/robust-combined", rates="estimate"), np.array([800, 200, 300, 0])) == 0.0
+    assert _misfit(unknown, np.array([960, 40, 45, 0])) == 0.0
 
 
 @pytest.mark.parametrize("scenario, learned", [("robust-v0/robust-spurious0.1", False),
@@ -161,3 +162,18 @@ def test_the_learned_correction_waits_for_a_misfit_unless_the_priors_state_mergi
     closed = play(LMHT(misfit=1e6), episode, clustering=False).labels
     assert np.array_equal(closed, labels) == (scenario != "agile-v0/agile-sliding")
     assert np.array_equal(play(LMHT(batch=1), episode, clustering=False).labels, labels)
+
+
+def test_the_gate_opens_on_a_file_whose_priors_leave_the_rates_unknown():
+    """Priors without rates (a pulse file's JSON may omit them): the decided labels are held to the weak
+    prior's 5 %, so agile sources that shed spurious labels still open the gate."""
+    import dataclasses
+    import math
+
+    episode = simulate(find_entry("agile-v0/agile-sliding").spec.replace(n_pulses=400), 1)
+    episode = dataclasses.replace(episode, priors=dataclasses.replace(episode.priors, missing_prob=math.nan,
+                                                                      spurious_rate=math.nan))
+    gated, closed = LMHT(), LMHT(misfit=1e6)
+    labels = play(gated, episode, clustering=False).labels
+    assert not np.array_equal(play(closed, episode, clustering=False).labels, labels)
+    assert gated.counts[3] == 1 and closed.counts[3] == 0

@@ -98,7 +98,7 @@ def scorer_from_tensors(tensors: dict[str, Any], where: str) -> Scorer:
 # and a margin of at least 4 nats per source (12 up to 3 sources).  lmht minus mht, normalised score
 # means, robust-v0 / core-v0 / agile-v0 (agile: lmht's mean, mht 0.606):
 #   version 5 (the correction and agile search always on):   +0.00077 / -0.00148 / 0.749
-#   + the gate on the correction alone (5 / 20 nats alike):  +0.00112 / -0.00183 / 0.750
+#   + the gate on the correction alone (10 nats; 5, 20 alike): +0.00112 / -0.00183 / 0.750
 #   + 4 per source within 32:                                +0.00095 / -0.00074 / 0.751
 #   + a margin of 4 nats per source (labels at 3 sources kept):        / -0.00059 /
 #   + the gate on the agile search too (this version):       +0.00009 / +0.00016 / 0.743

@@ -221,7 +221,7 @@ class Settings(NamedTuple):
     log_jump: float  # log _JUMP_P
     log_stay: float  # log(1 - _JUMP_P)
     jump_z2: float  # a jump is tried after a hit whose e^2 / S is at least this
-    misfit: float  # a learned scorer applies once the decided labels reject the stated rates by this (nats)
+    misfit: float  # the misfit gate opens once the decided labels reject the stated rates by this (nats)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -1342,7 +1342,7 @@ class MHT:
             raise ValueError(f"margin={margin!r} must be > 0 (inf: no score threshold)")
         self.margin = float(margin)
         if not 0.0 <= margin_per_source < math.inf:
-            raise ValueError(f"margin_per_source={margin_per_source!r} must be a finite number >= 0 (0: `margin` alone)")
+            raise ValueError(f"margin_per_source={margin_per_source!r} must be a finite number >= 0 (0: margin alone)")
         self.margin_per_source = float(margin_per_source)
         if not per_source > 0:
             raise ValueError(f"per_source={per_source!r} must be > 0 (inf: `beam` whatever the number of sources)")
@@ -1357,7 +1357,7 @@ class MHT:
             raise ValueError(f"jump_z={jump_z!r} must be a finite number >= 0 (0: a jump may follow every hit)")
         self.jump_z = float(jump_z)
         if not 0.0 <= misfit < math.inf:
-            raise ValueError(f"misfit={misfit!r} must be a finite number >= 0 (0: the scorer applies from the start)")
+            raise ValueError(f"misfit={misfit!r} must be a finite number >= 0 (0: open from the start)")
         self.misfit = float(misfit)
         self.net = Scorer.off() if scorer is None else scorer
 
@@ -1402,8 +1402,8 @@ class MHT:
             beam=self.beam if math.isinf(self.per_source) else min(self.beam, math.ceil(self.per_source * n)),
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
-            margin=max(self.margin, self.margin_per_source * n), drift=self.drift, jump=self.jump, log_jump=math.log(_JUMP_P),
-            log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2,
+            margin=max(self.margin, self.margin_per_source * n), drift=self.drift, jump=self.jump,
+            log_jump=math.log(_JUMP_P), log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2,
             misfit=0.0 if priors.coincidence_resolution > 0 else self.misfit)
         # the search while the misfit gate is closed
         self.fit = self.cfg._replace(dead=_DEAD, look=_LOOK, look_restart=self.look_start, jump=0.0, jump_z2=0.0)
@@ -1413,7 +1413,7 @@ class MHT:
         self.vettable = bool(np.all(0.5 * width < p[:, PERIOD]))
         self.perm = np.arange(n + 1)  # the label each track reports (`_identities`); spurious stays n
         self.identify = None  # (periods, variances) the tracks' identities are to be settled by
-        # decided hits, misses, spurious; whether the learned scorer is on (`_misfit`)
+        # decided hits, misses, spurious; whether the misfit gate is open (`_misfit`)
         self.counts = np.zeros(4, np.int64)
         self.toa = np.zeros(1024)
         self.labels = np.zeros(1024, np.int64)

@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 
 from agents.lmht import SEARCH, SEARCH_VERSION, LMHT, TorchScorer, candidates, group_loss, train  # noqa: E402
 from baselines.mht import MHT  # noqa: E402
-from baselines.mht import FEATURE_VERSION, N_FEATURES, mlp  # noqa: E402
+from baselines.mht import FEATURE_VERSION, N_FEATURES, Scorer, mlp  # noqa: E402
 from deint_env.errors import DeintError  # noqa: E402
 from deint_env.policies import make_policy, policy_info  # noqa: E402
 from deint_env.runner import play  # noqa: E402
@@ -149,8 +149,6 @@ def test_the_learned_correction_waits_for_a_misfit_unless_the_priors_state_mergi
     """lmht's labels are mht's search's alone (the scorer off) where mht's model fits; the scorer is on from
     the start where the priors state merging, and from a misfit on for agile sources; where it is on it
     changes labels.  The gate is decided per pulse, so the labels do not depend on `batch`."""
-    from baselines.mht import Scorer
-
     episode = simulate(find_entry(scenario).spec.replace(n_pulses=400), 1)
     gated = LMHT()
     labels = play(gated, episode, clustering=False).labels
@@ -164,7 +162,7 @@ def test_the_learned_correction_waits_for_a_misfit_unless_the_priors_state_mergi
     assert np.array_equal(play(LMHT(batch=1), episode, clustering=False).labels, labels)
 
 
-def test_the_gate_opens_on_a_file_whose_priors_leave_the_rates_unknown():
+def test_the_gate_opens_on_priors_that_leave_the_rates_unknown():
     """Priors without rates (a pulse file's JSON may omit them): the decided labels are held to the weak
     prior's 5 %, so agile sources that shed spurious labels still open the gate."""
     import dataclasses

@@ -1182,9 +1182,12 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, fit, counts,
     swapped = False
     while k < n_seen:
         y = toa[k]
+        if counts[_LEARNED] == 0 and _misfit(cfg, counts) >= cfg.misfit:
+            counts[_LEARNED] = 1
+        c = cfg if counts[_LEARNED] == 1 else fit  # (`MHT`: `misfit`)
         starting = y <= cfg.start_until
         ahead = cfg.horizon
-        width = cfg.beam
+        width = c.beam
         if starting:
             ahead = cfg.horizon_start
             width = cfg.start_beam
@@ -1198,9 +1201,6 @@ def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, fit, counts,
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        if counts[_LEARNED] == 0 and _misfit(cfg, counts) >= cfg.misfit:
-            counts[_LEARNED] = 1
-        c = cfg if counts[_LEARNED] == 1 else fit  # (`MHT`: `misfit`)
         size = _step(toa, n_seen, k, size, a, b, zob, prior, width, c.look, c, log_q, log_1mq, log_rho, w, net,
                      counts[_LEARNED] == 1)
         swapped = not swapped
@@ -1306,17 +1306,20 @@ class MHT:
     episode's end; before it, where the model fits, mht's defaults (restarts after 3 silent arrivals
     judged `look_start` ahead, hits judged 2 ahead, no jumps); 0: from the start.  Priors that state
     merging (a coincidence resolution, which the hand-written likelihood leaves out) have them from the
-    start."""
+    start.  `wide_from` (with `misfit`): from this many sources on, the search before the gate opens is
+    also mht's own, `beam` hypotheses and no margin (`per_source` and the margins then narrow only the
+    open gate's search); 0: never."""
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = _LOOK,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
                  dead: int = _DEAD, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
                  margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
-                 jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, scorer: Scorer | None = None):
+                 jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, wide_from: int = 0,
+                 scorer: Scorer | None = None):
         for name, v, lo in (("beam", beam, 1), ("start_beam", start_beam, 1), ("nscan", nscan, 0),
                             ("look_start", look_start, 0), ("look", look, 0), ("lag", lag, 0), ("batch", batch, 1),
-                            ("dead", dead, 1), ("look_init", look_init, 1)):
+                            ("dead", dead, 1), ("look_init", look_init, 1), ("wide_from", wide_from, 0)):
             if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
                 raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         if nscan > lag:
@@ -1359,6 +1362,7 @@ class MHT:
         if not 0.0 <= misfit < math.inf:
             raise ValueError(f"misfit={misfit!r} must be a finite number >= 0 (0: open from the start)")
         self.misfit = float(misfit)
+        self.wide_from = wide_from
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -1407,6 +1411,8 @@ class MHT:
             misfit=0.0 if priors.coincidence_resolution > 0 else self.misfit)
         # the search while the misfit gate is closed
         self.fit = self.cfg._replace(dead=_DEAD, look=_LOOK, look_restart=self.look_start, jump=0.0, jump_z2=0.0)
+        if 0 < self.wide_from <= n:  # a wider search where the model fits: dense scenes lose fewer tracks
+            self.fit = self.fit._replace(beam=self.beam, margin=math.inf)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are

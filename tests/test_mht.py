@@ -351,7 +351,7 @@ def test_mht_rejects_bad_parameters():
     for kw in ("beam=0", "gate=0", "rates=guess", "nscan=30,lag=10", "p_gap=1", "dense=-1", "look_init=0", "margin=0",
                "per_source=0", "look_restart=7", "look_restart=-1", "look_restart=2.5", "drift=-0.01", "drift=inf",
                "drift=nan", "jump=-0.1", "jump_z=-1", "jump_z=inf", "margin_per_source=-1", "margin_per_source=inf",
-               "misfit=-1", "misfit=inf"):
+               "misfit=-1", "misfit=inf", "wide_from=-1", "wide_from=2.5"):
         with pytest.raises(ValueError):
             make_policy(f"mht:{kw}")
 

@@ -164,13 +164,14 @@ def test_the_learned_correction_waits_for_a_misfit_unless_the_priors_state_mergi
 
 def test_from_six_sources_the_search_before_the_gate_opens_is_mhts_own_at_its_beam():
     """SEARCH's `wide_from`: where the gate stays closed on six sources lmht's labels are those of mht with
-    lmht's beam (64); without it they are the narrower search's; below six sources it changes nothing."""
+    lmht's beam (64) and N-scan depth; without it they are the narrower search's; below six sources it
+    changes nothing."""
     assert SEARCH["wide_from"] == 6 and SEARCH["beam"] == 64
     six = simulate(find_entry("core-v0/core-n6-spread1.5-jitter0.5").spec.replace(n_pulses=400), 1)
     gated = LMHT()
     labels = play(gated, six, clustering=False).labels
     assert gated.counts[3] == 0
-    assert np.array_equal(labels, play(MHT(beam=64), six, clustering=False).labels)
+    assert np.array_equal(labels, play(MHT(beam=64, nscan=SEARCH["nscan"]), six, clustering=False).labels)
     assert not np.array_equal(labels, play(LMHT(wide_from=0), six, clustering=False).labels)
     four = simulate(find_entry("core-v0/core-n4-spread1.5-jitter0.5").spec.replace(n_pulses=400), 1)
     assert np.array_equal(play(LMHT(), four, clustering=False).labels,

@@ -122,10 +122,21 @@ class EpisodeRecord:
         for k, types in {**_IDENTITY, **_OPTIONAL}.items():
             if k in data and (not isinstance(data[k], types) or (bool not in types and isinstance(data[k], bool))):
                 raise DeintError(f"{where}: field {k!r} is {json.dumps(data[k])[:40]}, not a {types[0].__name__}")
+        if not all(isinstance(t, str) for t in data["tags"]):
+            raise DeintError(f"{where}: field 'tags' is {json.dumps(data['tags'])[:40]}, not a list of strings")
         known = {**{k: data[k] for k in _IDENTITY}, **{k: data[k] for k in _OPTIONAL if k in data}}
         known["tags"] = tuple(known["tags"])
         metrics = {k: v for k, v in data.items() if k not in known}
+        for k, v in metrics.items():
+            if not (_metric_value(v) or (isinstance(v, list) and all(_metric_value(x) for x in v))):
+                raise DeintError(f"{where}: metric {k!r} is {json.dumps(v)[:40]}, not a number, null or a list of "
+                                 f"them")
         return cls(**known, metrics=metrics)
+
+
+def _metric_value(x: Any) -> bool:
+    """A metric as records hold it: a finite number (not a boolean) or null (undefined or not finite)."""
+    return x is None or (isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
 
 
 _FIELDS = frozenset(f.name for f in fields(EpisodeRecord)) - {"metrics"}
@@ -216,7 +227,7 @@ def _repair_end(path: Path) -> None:
     try:
         json.loads(data[start:])
         whole = True
-    except ValueError:
+    except (ValueError, RecursionError):  # a deeply nested torn line is no record either
         whole = False
     try:
         if whole:

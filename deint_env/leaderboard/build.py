@@ -13,7 +13,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, NamedTuple
 
 import numpy as np
 
@@ -41,18 +41,77 @@ def published_suites(root: str | os.PathLike = DEFAULT_ROOT) -> list[str]:
     return [s for s in list_suites() if (root / s / BOARD).is_file()]
 
 
+class BoardFile(NamedTuple):
+    """What a rebuild reads back from a leaderboard.json: the suite, its scope and the specs it played."""
+
+    suite: str
+    scenarios: tuple[str, ...] | None
+    max_seeds: int | None
+    specs: list[str]
+
+
+def read_board(folder: Path) -> BoardFile:
+    """The fields of `folder`'s leaderboard.json that a rebuild uses, checked field by field: a file that
+    is not JSON, too deep, or has a field of the wrong type is one `DeintError` line naming the file
+    and the field."""
+    path = folder / BOARD
+    try:
+        board = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+        raise DeintError(f"{path}: is not a leaderboard file (not readable JSON); remove it or regenerate "
+                         f"the folder") from None
+
+    def field(value: Any, name: str, ok: bool, what: str) -> Any:
+        if not ok:
+            raise DeintError(f"{path}: field {name} is {json.dumps(value)[:40]}, not {what}; remove the file or "
+                             f"regenerate the folder")
+        return value
+
+    def strings(value: Any, name: str) -> list[str]:
+        return field(value, name, isinstance(value, list) and all(isinstance(v, str) for v in value),
+                     "a list of strings")
+
+    def counts(value: Any, name: str) -> list[str]:  # {spec: episodes}
+        ok = isinstance(value, dict) and all(type(n) is int and n >= 0 for n in value.values())
+        return list(field(value, name, ok, "an object of episode counts"))
+
+    field(board, "(the whole file)", isinstance(board, dict), "a JSON object")
+    for key in ("suite", "scope", "rows", "incomplete", "stale"):
+        field(board.get(key), key, key in board, "present")
+    suite = field(board["suite"], "suite", isinstance(board["suite"], str), "a suite name")
+    scope = field(board["scope"], "scope", isinstance(board["scope"], dict), "an object")
+    names = scope.get("scenarios")
+    if names is not None:
+        names = tuple(strings(names, "scope.scenarios"))
+    max_seeds = scope.get("max_seeds")
+    field(max_seeds, "scope.max_seeds", max_seeds is None or (type(max_seeds) is int and max_seeds >= 1),
+          "null or an integer >= 1")
+    rows = field(board["rows"], "rows", isinstance(board["rows"], list), "a list")
+    specs = []
+    for i, row in enumerate(rows):
+        field(row, f"rows[{i}]", isinstance(row, dict), "an object")
+        field(row.get("policy"), f"rows[{i}].policy", isinstance(row.get("policy"), str), "a policy spec")
+        field(row.get("submitted"), f"rows[{i}].submitted", isinstance(row.get("submitted"), bool), "true or false")
+        if not row["submitted"]:
+            specs.append(row["policy"])
+    specs += counts(board["incomplete"], "incomplete") + counts(board["stale"], "stale")
+    return BoardFile(suite, names, max_seeds, specs)
+
+
 def board_policies(folder: Path) -> list[str]:
     """The policy specs a leaderboard was built with, as its leaderboard.json records them: every
     entry's `policy` (the canonical spec, parameters included), then those left incomplete or stale
-    (a run that did not finish, or an older version), submissions aside (they are scored, not played)."""
-    path = folder / BOARD
-    try:
-        board = json.loads(path.read_text())
-        rows, incomplete, stale = board["rows"], board["incomplete"], board["stale"]
-        specs = [r["policy"] for r in rows if not r["submitted"]] + list(incomplete) + list(stale)
-    except (OSError, ValueError, KeyError, TypeError):
-        raise DeintError(f"{path}: is not a leaderboard file; remove it or regenerate the folder") from None
-    return list(dict.fromkeys(s for s in specs if not s.endswith(SUFFIX)))
+    (a run that did not finish, or an older version), submissions aside (they are scored, not played).
+
+    A data file never chooses code to import: a recorded spec of an adapter (a policy whose parameters
+    name a module to run, e.g. `tdc:model=module:Name`) is refused; name it with --policies to run it."""
+    specs = list(dict.fromkeys(s for s in read_board(folder).specs if not s.endswith(SUFFIX)))
+    for spec in specs:
+        name = spec.split(":", 1)[0]
+        if any(info.name == name and info.kind == "adapter" for info in policies.list_policies()):
+            raise DeintError(f"{folder / BOARD}: records {spec!r}, whose parameters name code to import; a "
+                             f"leaderboard file does not choose what runs: name it with --policies to rebuild it")
+    return specs
 
 
 def default_policies() -> list[str]:
@@ -99,17 +158,12 @@ class Scope:
     @classmethod
     def of_folder(cls, folder: Path, suite: str) -> Scope:
         """The scope an existing leaderboard folder was built with (the whole suite if none)."""
-        path = folder / BOARD
-        if not path.exists():
+        if not (folder / BOARD).exists():
             return cls(suite)
-        try:
-            board = json.loads(path.read_text())
-            names, max_seeds, of = board["scope"]["scenarios"], board["scope"]["max_seeds"], board["suite"]
-        except (ValueError, KeyError, TypeError):
-            raise DeintError(f"{path}: is not a leaderboard file; remove it or regenerate the folder") from None
-        if of != suite:
-            raise DeintError(f"{path}: is the leaderboard of {of}, not {suite}")
-        return cls(suite, tuple(names) if names is not None else None, max_seeds)
+        board = read_board(folder)
+        if board.suite != suite:
+            raise DeintError(f"{folder / BOARD}: is the leaderboard of {board.suite}, not {suite}")
+        return cls(suite, board.scenarios, board.max_seeds)
 
 
 def workers_default() -> int:

@@ -1,0 +1,105 @@
+"""Hostile results and leaderboard files (issue 26): every field is checked by type before it is used,
+one line names the file and the field, and a leaderboard file never chooses code to import."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from deint_env.cli import main
+
+TARGET = "paper-v0/mk94-two-var1"
+BOARD = {"suite": "core-v0", "scope": {"scenarios": ["core-n2-spread1.5-jitter0.05"], "max_seeds": 1},
+         "rows": [{"policy": "random", "submitted": False}], "incomplete": {}, "stale": {}}
+
+
+def deint(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def record_line(tmp_path_factory) -> str:
+    """One genuine results line, for the tests to tamper with."""
+    out = tmp_path_factory.mktemp("run") / "res.jsonl"
+    assert main(["run", "--policies", "random", "--scenario", TARGET, "--max-seeds", "1", "--out", str(out),
+                 "--no-progress"]) == 0
+    return out.read_text()
+
+
+def _run(capsys, out: Path):
+    return deint(capsys, "run", "--policies", "random", "--scenario", TARGET, "--max-seeds", 2, "--out", out,
+                 "--no-progress")
+
+
+@pytest.mark.parametrize("field,value,says", [
+    ("accuracy", "abc", "metric 'accuracy' is \"abc\", not a number, null or a list of them"),
+    ("pe", [0.1, "x"], "metric 'pe' is [0.1, \"x\"], not a number, null or a list of them"),
+    ("score", True, "metric 'score' is true, not a number"),
+    ("tags", [{}], "field 'tags' is [{}], not a list of strings"),
+])
+def test_a_record_field_of_the_wrong_type_is_one_line(capsys, tmp_path, record_line, field, value, says):
+    out = tmp_path / "res.jsonl"
+    out.write_text(json.dumps({**json.loads(record_line), field: value}) + "\n")
+    before = out.read_bytes()
+    code, _, err = _run(capsys, out)
+    assert code == 2 and err.startswith(f"deint: error: {out}: line 1: ") and says in err
+    assert err.count("\n") == 1 and out.read_bytes() == before  # nothing written
+
+
+def test_a_deep_torn_last_line_is_cut_not_a_traceback(capsys, tmp_path, record_line):
+    out = tmp_path / "res.jsonl"
+    out.write_text(record_line + "[" * 200_000)  # a torn line deeper than the JSON parser's recursion limit
+    code, _, err = _run(capsys, out)
+    assert code == 0, err
+    lines = out.read_text().splitlines()
+    assert len(lines) == 2 and lines[0] == record_line.strip()  # the record kept, the torn line cut, one played
+
+
+def _board(root: Path, board) -> Path:
+    folder = root / "core-v0"
+    folder.mkdir(parents=True)
+    (folder / "leaderboard.json").write_text(board if isinstance(board, str) else json.dumps(board))
+    return folder
+
+
+@pytest.mark.parametrize("change,says", [
+    ({"rows": [{"policy": 5, "submitted": False}]}, "field rows[0].policy is 5, not a policy spec"),
+    ({"rows": [{"policy": "random"}]}, "field rows[0].submitted is null, not true or false"),
+    ({"rows": 5}, "field rows is 5, not a list"),
+    ({"stale": [5]}, "field stale is [5], not an object of episode counts"),
+    ({"incomplete": {"random": "x"}}, "field incomplete is {\"random\": \"x\"}, not an object of episode counts"),
+    ({"scope": {"scenarios": 5, "max_seeds": 1}}, "field scope.scenarios is 5, not a list of strings"),
+    ({"scope": {"scenarios": None, "max_seeds": True}}, "field scope.max_seeds is true, not null or an integer >= 1"),
+    ({"scope": {"scenarios": None, "max_seeds": 0}}, "field scope.max_seeds is 0, not null or an integer >= 1"),
+    ({"suite": ["core-v0"]}, "field suite is [\"core-v0\"], not a suite name"),
+])
+def test_a_tampered_leaderboard_file_is_one_line(capsys, tmp_path, change, says):
+    folder = _board(tmp_path, {**BOARD, **change})
+    code, _, err = deint(capsys, "leaderboard", "--all", "--root", tmp_path, "--no-progress")
+    assert code == 2 and err == (f"deint: error: {folder / 'leaderboard.json'}: {says}; remove the file or "
+                                 f"regenerate the folder\n")
+    assert sorted(p.name for p in folder.iterdir()) == ["leaderboard.json"]  # nothing run, nothing written
+
+
+def test_a_deeply_nested_leaderboard_file_is_one_line(capsys, tmp_path):
+    folder = _board(tmp_path, "[" * 200_000 + "]" * 200_000)
+    code, _, err = deint(capsys, "leaderboard", "--all", "--root", tmp_path, "--no-progress")
+    assert code == 2 and err == (f"deint: error: {folder / 'leaderboard.json'}: is not a leaderboard file (not "
+                                 f"readable JSON); remove it or regenerate the folder\n")
+
+
+def test_a_leaderboard_file_does_not_choose_what_is_imported(capsys, tmp_path, monkeypatch):
+    marker = tmp_path / "imported"
+    (tmp_path / "chosen_by_the_file.py").write_text(f"open({str(marker)!r}, 'w').close()\nclass M: pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    spec = "tdc:model=chosen_by_the_file:M"
+    folder = _board(tmp_path / "boards", {**BOARD, "rows": [{"policy": spec, "submitted": False}]})
+    code, _, err = deint(capsys, "leaderboard", "--all", "--root", tmp_path / "boards", "--no-progress")
+    assert code == 2 and err == (f"deint: error: {folder / 'leaderboard.json'}: records {spec!r}, whose parameters "
+                                 f"name code to import; a leaderboard file does not choose what runs: name it with "
+                                 f"--policies to rebuild it\n")
+    assert not marker.exists()

@@ -137,49 +137,64 @@ def test_a_second_writer_is_refused_in_process(tmp_path):
     assert not out.exists() and not results.lock_path(out).exists()  # released and removed
 
 
-SLOW_RUN = """
-import sys, time
+# A run whose policy holds its first episode until the test lets it go: `reset` runs inside the run's
+# results lock, so while the hold file exists the run provably holds the lock (timing-free: under load a
+# second process's start-up can outlast any fixed number of slow episodes, and the first run then
+# releases the lock and ends before the second tries).
+HELD_RUN = """
+import os, sys, time
 from deint_env import policies
 from deint_env.cli import main
 import baselines.floors as floors
 
-class Slow(floors.RandomPolicy):
+hold, started = os.environ["DEINT_TEST_HOLD"], os.environ["DEINT_TEST_STARTED"]
+
+class Held(floors.RandomPolicy):
     def reset(self, priors, info):
-        time.sleep(0.6)
+        open(started, "w").close()
+        deadline = time.monotonic() + 300
+        while os.path.exists(hold) and time.monotonic() < deadline:
+            time.sleep(0.02)
         super().reset(priors, info)
 
 policies.list_policies()
-policies.register_policy("slow-random", Slow)
+policies.register_policy("held-random", Held)
 sys.exit(main(sys.argv[1:]))
 """
 
 
-def _deint_process(*argv, script: str = SLOW_RUN) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+def _deint_process(*argv, hold: Path, script: str = HELD_RUN) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DEINT_TEST_HOLD": str(hold),
+           "DEINT_TEST_STARTED": str(hold.with_suffix(".started"))}
     return subprocess.Popen([sys.executable, "-c", script, *map(str, argv)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
 
 
 def test_two_concurrent_writers_lose_nothing_and_the_second_is_told(tmp_path):
-    out = tmp_path / "res.jsonl"
-    argv = ["run", "--policies", "slow-random", "--scenario", TARGET, "--max-seeds", 10, "--out", out, "--no-progress"]
-    first = _deint_process(*argv)
-    deadline = time.monotonic() + 60
-    while not results.lock_path(out).exists():  # the first holds the lock
-        assert time.monotonic() < deadline and first.poll() is None, first.stderr.read() if first.poll() else ""
-        time.sleep(0.05)
-    second = _deint_process(*argv)
-    _, err2 = second.communicate(timeout=120)
-    assert first.poll() is None, "the first run ended before the second tried: give it more episodes"
-    _, err1 = first.communicate(timeout=120)
+    out, hold = tmp_path / "res.jsonl", tmp_path / "hold"
+    started = hold.with_suffix(".started")
+    argv = ["run", "--policies", "held-random", "--scenario", TARGET, "--max-seeds", 10, "--out", out, "--no-progress"]
+    hold.touch()
+    first = _deint_process(*argv, hold=hold)
+    try:
+        deadline = time.monotonic() + 120
+        while not started.exists():  # the first is inside its run, so it holds the lock
+            assert time.monotonic() < deadline and first.poll() is None, first.stderr.read() if first.poll() else ""
+            time.sleep(0.05)
+        second = _deint_process(*argv, hold=tmp_path / "no-hold")
+        _, err2 = second.communicate(timeout=300)
+        assert first.poll() is None  # still held: the refusal below was the lock's doing
+    finally:
+        hold.unlink()
+    _, err1 = first.communicate(timeout=300)
     assert first.returncode == 0, err1
-    assert second.returncode == 2
+    assert second.returncode == 2, err2
     assert err2 == (f"deint: error: {out}: another process is writing this results file (it holds "
                     f".res.jsonl.lock); wait for it to finish or write elsewhere\n")
     got = keys(out)
     assert len(got) == 10 and len(set(got)) == 10  # none lost, none twice
-    again = _deint_process(*argv)
-    assert again.wait(timeout=120) == 0 and keys(out) == got  # a later run finds everything done
+    again = _deint_process(*argv, hold=tmp_path / "no-hold")
+    assert again.wait(timeout=300) == 0 and keys(out) == got  # a later run finds everything done
 
 
 def test_a_second_leaderboard_keeps_the_first_runs_records(tmp_path):

@@ -27,6 +27,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from deint_env.errors import DeintError
+from deint_env.formats.files import check_output, read_bytes
 
 _write = os.write  # the one place bytes reach a results file (tests simulate a full disk here)
 
@@ -229,6 +230,8 @@ def _repair_end(path: Path) -> None:
         whole = True
     except (ValueError, RecursionError):  # a deeply nested torn line is no record either
         whole = False
+    if not whole and not data[start:].startswith(b"{"):  # not a torn record: this is no results file
+        raise DeintError(f"{path}: is not a results file (its last line is not a record); write elsewhere")
     try:
         if whole:
             with open(path, "ab") as f:
@@ -247,9 +250,9 @@ def read_records(path: str | os.PathLike) -> list[EpisodeRecord]:
     if not path.exists():
         return []
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise DeintError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+        text = read_bytes(path, "results").decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise DeintError(f"{path}: cannot read ({e})") from None
     return parse_records(text, str(path))
 
 
@@ -262,7 +265,7 @@ def parse_records(text: str, name: str) -> list[EpisodeRecord]:
         try:
             data = json.loads(line)
         except (ValueError, RecursionError):
-            if n == len(lines):  # the unterminated last line
+            if n == len(lines) and line.startswith("{"):  # the unterminated last line: a record being written
                 break
             raise DeintError(f"{name}: line {n} is not a JSON record; fix or remove it") from None
         rec = EpisodeRecord.from_json(data, f"{name}: line {n}")
@@ -278,6 +281,7 @@ class ResultsWriter:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
+        check_output(self.path)  # appending through a link or to a device would write what is not ours
         _repair_end(self.path)
         try:
             self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)

@@ -52,11 +52,14 @@ def test_a_record_field_of_the_wrong_type_is_one_line(capsys, tmp_path, record_l
 
 def test_a_deep_torn_last_line_is_cut_not_a_traceback(capsys, tmp_path, record_line):
     out = tmp_path / "res.jsonl"
-    out.write_text(record_line + "[" * 200_000)  # a torn line deeper than the JSON parser's recursion limit
+    out.write_text(record_line + '{"pe": ' + "[" * 200_000)  # a torn record deeper than the parser's recursion limit
     code, _, err = _run(capsys, out)
     assert code == 0, err
     lines = out.read_text().splitlines()
     assert len(lines) == 2 and lines[0] == record_line.strip()  # the record kept, the torn line cut, one played
+    out.write_text(record_line + "[" * 200_000)  # deep, and no record at all
+    code, _, err = _run(capsys, out)
+    assert code == 2 and err == (f"deint: error: {out}: line 2 is not a JSON record; fix or remove it\n")
 
 
 def _board(root: Path, board) -> Path:
@@ -103,3 +106,80 @@ def test_a_leaderboard_file_does_not_choose_what_is_imported(capsys, tmp_path, m
                                  f"name code to import; a leaderboard file does not choose what runs: name it with "
                                  f"--policies to rebuild it\n")
     assert not marker.exists()
+
+
+# ---------------------------------------------------------------------------------------------------
+# outputs damage nothing that is not theirs
+# ---------------------------------------------------------------------------------------------------
+def test_a_text_file_as_results_file_is_refused_not_cut(capsys, tmp_path):
+    from deint_env.errors import DeintError
+    from deint_env.results import ResultsWriter
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes, one line without its newline")
+    code, _, err = _run(capsys, notes)
+    assert code == 2 and err == f"deint: error: {notes}: line 1 is not a JSON record; fix or remove it\n"
+    with pytest.raises(DeintError, match="is not a results file"):  # the writer alone does not cut it either
+        ResultsWriter(notes)
+    assert notes.read_text() == "my notes, one line without its newline"
+
+
+@pytest.mark.parametrize("kind", ["fifo", "symlink"])
+def test_outputs_that_are_not_regular_files_are_refused(capsys, tmp_path, kind):
+    import os
+
+    target, out = tmp_path / "precious.csv", tmp_path / "out.csv"
+    target.write_text("keep me\n")
+    if kind == "fifo":
+        os.mkfifo(out)
+        says = "a FIFO"
+    else:
+        out.symlink_to(target)
+        says = "a symbolic link"
+    code, _, err = deint(capsys, "simulate", TARGET, "--seed", 1, "-o", out)
+    assert code == 2 and err == (f"deint: error: cannot write {out}: it is {says}; outputs are written only to "
+                                 f"regular files (new or existing)\n")
+    assert target.read_text() == "keep me\n" and (out.is_fifo() if kind == "fifo" else out.is_symlink())
+    results = tmp_path / "res.jsonl"  # a results file appended to is an output (and an input) too
+    if kind == "fifo":
+        os.mkfifo(results)
+    else:
+        (tmp_path / "empty.jsonl").touch()
+        results.symlink_to(tmp_path / "empty.jsonl")
+    code, _, err = _run(capsys, results)
+    assert code == 2 and err == (f"deint: error: {results}: is not a regular file; a results file is read only from a "
+                                 f"regular file\n" if kind == "fifo" else
+                                 f"deint: error: cannot write {results}: it is a symbolic link; outputs are written "
+                                 f"only to regular files (new or existing)\n")
+    assert kind == "fifo" or (tmp_path / "empty.jsonl").read_text() == ""
+
+
+@pytest.mark.parametrize("name", ["results.jsonl", "leaderboard.json"])
+def test_export_cannot_replace_a_leaderboards_own_files(capsys, tmp_path, name):
+    folder = _board(tmp_path, BOARD)
+    (folder / "results.jsonl").write_text("")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    code, _, err = deint(capsys, "leaderboard", "export", "--suite", "core-v0", "--policy", "random",
+                         "--scenarios", "core-n2-spread1.5-jitter0.05", "--max-seeds", 1, "-o", folder / name)
+    assert code == 2 and err == (f"deint: error: {folder / name}: lies in a leaderboard folder, whose files `deint "
+                                 f"leaderboard` writes; write the labels elsewhere\n")
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+@pytest.mark.parametrize("flag", ["pulses", "--priors"])
+def test_inputs_that_are_not_regular_files_are_refused(capsys, tmp_path, flag):
+    import os
+
+    good, fifo = tmp_path / "p.csv", tmp_path / "fifo"
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(good), "--priors-out", str(tmp_path / "p.json")]) == 0
+    capsys.readouterr()
+    os.mkfifo(fifo)  # reading it would wait for a writer that never comes
+    pulses, priors = (fifo, tmp_path / "p.json") if flag == "pulses" else (good, fifo)
+    code, _, err = deint(capsys, "label", pulses, "--priors", priors, "--policy", "random", "-o", tmp_path / "l.csv")
+    kind = "CSV" if flag == "pulses" else "JSON"
+    assert code == 2 and err == f"deint: error: {fifo}: is not a regular file; a {kind} file is read only from a " \
+                                f"regular file\n"
+    code, _, err = deint(capsys, "label", "/dev/zero", "--priors", tmp_path / "p.json", "--policy", "random",
+                         "-o", tmp_path / "l.csv")
+    assert code == 2 and err == "deint: error: /dev/zero: is not a regular file; a CSV file is read only from a " \
+                                "regular file\n"

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterator, Sequence, TextIO
@@ -54,11 +55,29 @@ def _finish(tmp: Path, path: Path) -> None:
     os.chmod(tmp, _file_mode(path))
 
 
+def check_output(path: PathLike) -> None:
+    """Refuse an output path that exists as anything but a regular file: renaming over a device node,
+    a FIFO or a symbolic link would replace it (as root, `-o /dev/null` would replace /dev/null)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise _cannot_write(path, e) from None
+    if not stat.S_ISREG(mode):
+        kind = ("a symbolic link" if stat.S_ISLNK(mode) else "a directory" if stat.S_ISDIR(mode) else
+                "a FIFO" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else
+                "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+        raise DeintError(f"cannot write {path}: it is {kind}; outputs are written only to regular files (new or "
+                         f"existing)")
+
+
 @contextlib.contextmanager
 def atomic_path(path: PathLike) -> Iterator[Path]:
     """A temporary path beside `path` to write to (for writers that open files themselves, e.g. h5py);
     it replaces `path` only if the block succeeds, and is removed otherwise."""
     path = Path(path)
+    check_output(path)
     tmp = _temporary(path)
     try:
         yield tmp
@@ -75,6 +94,8 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
 def write_all(files: Sequence[tuple[PathLike, str | bytes]]) -> None:
     """Write every (path, text or bytes) together: each to a temporary file beside its target, then all
     renamed over their targets; if any write fails, no target changes and the error names its file."""
+    for current, _ in files:  # every target checked before anything is written
+        check_output(current)
     temps: list[tuple[Path, Path]] = []
     current: PathLike = ""
     try:
@@ -128,6 +149,10 @@ def read_bytes(path: PathLike, kind: str) -> bytes:
     """A file's bytes, every failure one line naming the file (`kind`: what the file should be)."""
     path = Path(path)
     try:
+        # A device or FIFO (/dev/zero, a pipe) has no end to read to (and opening a FIFO waits for a
+        # writer), so it is refused before it is opened: only regular files are inputs.
+        if not stat.S_ISREG(os.stat(path).st_mode) and not path.is_dir():
+            raise DeintError(f"{path}: is not a regular file; a {kind} file is read only from a regular file")
         return path.read_bytes()
     except FileNotFoundError:
         raise DeintError(f"{path}: no such file") from None

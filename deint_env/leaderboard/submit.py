@@ -47,7 +47,7 @@ from deint_env.formats import from_file_labels, read_bytes, to_file_labels
 from deint_env.formats.files import write_bytes, write_text
 from deint_env.formats.json_files import check_depth
 from deint_env.formats.npz import read_npz
-from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, SUFFIX, Scope, write
+from deint_env.leaderboard.build import BOARD, DEFAULT_ROOT, RESULTS, SUFFIX, Scope, write
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
 from deint_env.runner import reference_accuracies
@@ -333,6 +333,9 @@ def export(scope: Scope, policy: str, path: str | os.PathLike, *, workers: int =
     path = Path(path)
     if not path.resolve().parent.is_dir():
         raise DeintError(f"{path}: cannot write: directory {path.parent} does not exist")
+    if (path.resolve().parent / BOARD).exists():
+        raise DeintError(f"{path}: lies in a leaderboard folder, whose files `deint leaderboard` writes; write the "
+                         f"labels elsewhere")
     make_policy(policy)  # one line for an unknown policy or parameter
     spec = canonical_spec(*parse_policy_spec(policy))
     episodes = scope.episodes()

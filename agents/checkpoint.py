@@ -70,7 +70,29 @@ class CheckpointMeta:
         for name in ("architecture", "features", "suite_hashes", "hyperparameters", "versions"):
             if not isinstance(d[name], dict):
                 raise DeintError(f"{where}: metadata {name!r} must be a JSON object")
+        for name in ("architecture", "features"):
+            _check_sizes(d[name], f"{where}: {name}")
         return cls(**d)
+
+
+# The sizes a checkpoint's architecture and feature layout may declare, checked before any network is
+# built: a 151 KB file declaring d_model=30000 would otherwise allocate gigabytes before its tensors
+# fail to fit.  Widths and lengths are at most MAX_SIZE, depths far less (a 16-layer, 1024-wide
+# transformer is about 0.2 G parameters, under 1 GB); no shipped agent comes near (d_model <= 64).
+MAX_SIZE = 4096
+SIZE_BOUNDS = {"d_model": (1, 1024), "heads": (1, 64), "layers": (1, 16), "n_lstm_layers": (1, 8), "net_arch": (1, MAX_SIZE)}
+MAX_LIST = 16
+
+
+def _check_sizes(fields: dict[str, Any], where: str) -> None:
+    for key, value in fields.items():
+        items = value if isinstance(value, list) else [value]
+        if isinstance(value, list) and len(value) > MAX_LIST and any(type(v) is int for v in value):
+            raise DeintError(f"{where} {key!r} lists {len(value)} sizes; at most {MAX_LIST}")
+        lo, hi = SIZE_BOUNDS.get(key, (0, MAX_SIZE))
+        for v in items:
+            if type(v) is int and not lo <= v <= hi:
+                raise DeintError(f"{where} {key}={v} is out of range: an integer in [{lo}, {hi}]")
 
 
 @dataclass(frozen=True)

@@ -154,6 +154,8 @@ def resolve_target(target: str) -> list[tuple[str | None, str | None, Any]]:
 def make_jobs(policies: Iterable[str], target: str, split: str = "test", max_seeds: int | None = None) -> list[Job]:
     if split not in SPLITS:
         raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
+    if max_seeds is not None and (not isinstance(max_seeds, int) or isinstance(max_seeds, bool) or max_seeds < 1):
+        raise DeintError(f"max_seeds={max_seeds!r} is invalid: an integer >= 1 (or None: every seed)")
     canon = []
     for p in policies:
         name, kwargs = parse_policy_spec(p)

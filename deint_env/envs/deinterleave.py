@@ -80,6 +80,17 @@ def split_seeds(scenario: ScenarioSpec | str | dict | None, spec: ScenarioSpec |
     return SplitRange(split, f"{suite}/{entry.name}", seeds, other)
 
 
+def _label(action: Any) -> int | None:
+    """The label an action names, or None: an integer (Python or numpy, or a one-element integer array,
+    as vectorised agents hand over), never a float, a string or a boolean that int() would coerce."""
+    if isinstance(action, np.ndarray):
+        ok = action.size == 1 and action.ndim <= 1 and action.dtype.kind in "iu"
+        return int(action.reshape(())) if ok else None
+    if isinstance(action, (bool, np.bool_)) or not isinstance(action, (int, np.integer)):
+        return None
+    return int(action)
+
+
 class DeinterleaveEnv(gym.Env[dict, int]):
     """
     ## Description
@@ -148,6 +159,15 @@ class DeinterleaveEnv(gym.Env[dict, int]):
                  render_mode: str | None = None, clustering_metrics: bool = True, split: str | None = None, *,
                  n_labels: int | None = None, blind: bool = False):
         # scenario=None (with n_labels) makes an env that only plays given episodes: see `for_episode`.
+        if scenario is not None and (n_labels is not None or blind is not False):
+            raise DeintError(f"n_labels={n_labels!r}, blind={blind!r}: these are for scenario=None (an env that "
+                             f"plays given episodes); a scenario fixes its own label count and mode")
+        if scenario is None and (not isinstance(n_labels, (int, np.integer)) or isinstance(n_labels, bool)
+                                 or n_labels < 1 or not isinstance(blind, (bool, np.bool_))):
+            raise DeintError(f"n_labels={n_labels!r}, blind={blind!r} are invalid: scenario=None needs an integer "
+                             f"n_labels >= 1 and blind true or false")
+        if not isinstance(clustering_metrics, (bool, np.bool_)):
+            raise DeintError(f"clustering_metrics={clustering_metrics!r} is invalid: True or False")
         self.spec_scenario = resolve_scenario(scenario) if scenario is not None else None
         self.split = split_seeds(scenario, self.spec_scenario, split)
         self.lag = check_lag(lag)
@@ -221,8 +241,8 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         j = self._step - self.lag
         reward = 0.0
         if j >= 0:
-            a = int(action)
-            if not 0 <= a <= self.n_labels:
+            a = _label(action)
+            if a is None or not 0 <= a <= self.n_labels:
                 raise DeintError(f"action={action!r} is invalid: a label in [0, {self.n_labels}]"
                                  f" ({self.n_labels} = spurious)")
             self.labels[j] = a

@@ -24,6 +24,10 @@ from deint_env.suites import resolve_scenario
 _ALL_BITS = np.uint64(2**64 - 1)
 
 
+# Sub-envs are simulated and stepped in one process: beyond this many, memory and a reset's time run away
+# (num_envs=10**9 hung) long before any learner could use them.
+MAX_ENVS = 4096
+
 class DeinterleaveVectorEnv(VectorEnv):
     """
     ## Description
@@ -86,8 +90,8 @@ class DeinterleaveVectorEnv(VectorEnv):
         if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
             raise DeintError(f"autoreset_mode={autoreset_mode!r} is invalid: NextStep or SameStep")
         self.metadata = {**self.metadata, "autoreset_mode": mode}
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise DeintError(f"num_envs={num_envs!r} is invalid: an integer >= 1")
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_ENVS:
+            raise DeintError(f"num_envs={num_envs!r} is invalid: an integer in [1, {MAX_ENVS}]")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise DeintError(f"render_mode={render_mode!r} is invalid: None, 'ansi' or 'rgb_array'")
         self.num_envs = int(num_envs)
@@ -95,6 +99,8 @@ class DeinterleaveVectorEnv(VectorEnv):
         self.split = split_seeds(scenario, self.spec_scenario, split)
         self.lag = check_lag(lag)
         self.render_mode = render_mode
+        if not isinstance(clustering_metrics, (bool, np.bool_)):
+            raise DeintError(f"clustering_metrics={clustering_metrics!r} is invalid: True or False")
         self.clustering_metrics = clustering_metrics
         self.n_labels = self.spec_scenario.n_labels
         self.blind = self.spec_scenario.blind

@@ -183,3 +183,35 @@ def test_inputs_that_are_not_regular_files_are_refused(capsys, tmp_path, flag):
                          "-o", tmp_path / "l.csv")
     assert code == 2 and err == "deint: error: /dev/zero: is not a regular file; a CSV file is read only from a " \
                                 "regular file\n"
+
+
+# ---------------------------------------------------------------------------------------------------
+# submissions and challenge files
+# ---------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("version", ["true", "1.0001", "\"1\""])
+def test_a_submission_header_version_must_be_the_integer(tmp_path, version):
+    from deint_env.errors import DeintError
+    from deint_env.leaderboard.submit import read_submission
+
+    path = tmp_path / "sub.jsonl"
+    path.write_text('{"format": "deint-submission", "version": ' + version + ', "suite": "core-v0", "name": "x"}\n'
+                    '{"scenario": "a", "seed": 1, "labels": [0]}\n')
+    with pytest.raises(DeintError, match=r"version=.* is not supported: 1"):
+        read_submission(path)
+
+
+def test_challenge_feature_names_lose_their_unit_in_linear_time():
+    import random
+    import re
+
+    from deint_env.formats.tdc import _without_unit, canonical_feature
+
+    def reference(name: str) -> str:  # the regex it replaced (quadratic on many opening brackets)
+        return re.sub(r"\s*[(\[][^)\]]*[)\]]\s*$", "", name)
+
+    rng = random.Random(0)
+    for _ in range(5000):
+        name = "".join(rng.choice("ab (])[ \t-") for _ in range(rng.randint(0, 12)))
+        assert _without_unit(name).strip() == reference(name).strip(), name
+    assert canonical_feature("Time of Arrival (us)") == "toa"
+    assert canonical_feature("(" * 100_000 + "toa") is None and canonical_feature("[" * 100_000 + ")") is None

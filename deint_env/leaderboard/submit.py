@@ -136,7 +136,8 @@ def _check_header(path: Path, where: str, obj: dict[str, Any]) -> dict[str, Any]
         raise DeintError(f"{path}: {where}: unknown header key {bad[0]!r}; a header has {', '.join(HEADER_KEYS)}")
     if obj.get("format") != FORMAT:
         raise DeintError(f"{path}: {where}: format={obj.get('format')!r} is invalid: {FORMAT!r}")
-    if obj.get("version", VERSION) != VERSION:
+    version = obj.get("version", VERSION)
+    if isinstance(version, (bool, np.bool_)) or version != VERSION:  # true == 1 in Python, not in the format
         raise DeintError(f"{path}: {where}: version={obj['version']!r} is not supported: {VERSION}")
     for key in ("suite", "name"):
         if key in obj and not isinstance(obj[key], str):

@@ -27,6 +27,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import math
+import re
 import weakref
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -181,7 +182,7 @@ def _parse_value(text: str, where: str) -> Any:
         return low == "true"
     if low in ("none", "null"):
         return None
-    if text.lstrip("+-").isdigit():
+    if re.fullmatch(r"[+-]?[0-9]+", text):  # ASCII digits: str.isdigit() also passes '²', which int() refuses
         if len(text.lstrip("+-")) > 19 or abs(int(text)) >= MAX_SEED:
             raise DeintError(f"{where} is out of range: integers in policy parameters are below 2^63 in size")
         return int(text)

@@ -215,3 +215,25 @@ def test_challenge_feature_names_lose_their_unit_in_linear_time():
         assert _without_unit(name).strip() == reference(name).strip(), name
     assert canonical_feature("Time of Arrival (us)") == "toa"
     assert canonical_feature("(" * 100_000 + "toa") is None and canonical_feature("[" * 100_000 + ")") is None
+
+
+# ---------------------------------------------------------------------------------------------------
+# policy parameter values
+# ---------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("text", ["²", "+-3", "--3", "-+3", "٣"])
+def test_policy_values_that_int_refuses_are_not_integers(text):
+    from deint_env.policies import _parse_value
+
+    value = _parse_value(text, "x")  # was int(text) on anything str.isdigit() passed: a traceback
+    assert not isinstance(value, int) or isinstance(value, bool)
+
+
+@pytest.mark.parametrize("spec", ["fdp:lookahead=²", "mht:beam=+-3", "random:seed=--3"])
+def test_such_values_through_label_are_one_line(capsys, tmp_path, spec):
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv"), "--priors-out",
+                 str(tmp_path / "p.json")]) == 0
+    capsys.readouterr()
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy", spec, "-o",
+                         tmp_path / "l.csv")
+    assert code == 2 and err.startswith(f"deint: error: policy {spec!r}: ") and err.count("\n") == 1
+    assert not (tmp_path / "l.csv").exists()

@@ -13,6 +13,10 @@ from deint_env.errors import DeintError
 
 SCALARS = ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate", "coincidence_resolution")
 RATES = ("missing_prob", "spurious_rate")  # NaN = unknown (a policy estimates it), distinct from 0
+# Numbers a priors file may hold, in any time unit: the trackers square and multiply them (a jitter of
+# 1e200 overflowed to a traceback in seven policies; a period of 5e-324 has no finite rate), and 1e30
+# leaves room for fourth powers while spanning seconds to picoseconds.
+MAX_MAGNITUDE, MIN_POSITIVE = 1e30, 1e-30
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +72,11 @@ class Priors:
 
     @classmethod
     def from_info(cls, info: dict[str, Any]) -> Priors:
+        n, blind = info.get("n_labels"), info.get("blind", False)
+        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+            raise DeintError(f"priors: n_labels={n!r} must be an integer >= 1")
+        if not isinstance(blind, (bool, np.bool_)):
+            raise DeintError(f"priors: blind={blind!r} must be true or false")
         kw = {k: info[k] for k in ("n_labels", "blind", *SCALARS) if k in info}
         for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std"):
             if info.get(k) is not None:
@@ -113,6 +122,7 @@ class Priors:
             if key in RATES and d.get(key) is None:
                 return math.nan  # not stated (or null): unknown
             v = d.get(key, default)
+            hi = min(hi, MAX_MAGNITUDE)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not (lo <= v <= hi):
                 unknown_ok = " or null (unknown)" if key in RATES else ""
                 raise DeintError(f"{where}: {key}={v!r} must be a number in [{lo}, {hi}]{unknown_ok}")
@@ -124,11 +134,17 @@ class Priors:
                     "spurious_rate": scalar("spurious_rate", 0.0, hi=10.0),
                     "coincidence_resolution": scalar("coincidence_resolution", 0.0)}
 
-        if d.get("blind"):
+        blind = d.get("blind", False)
+        if not isinstance(blind, bool):  # "false", "yes" and 1 are not JSON booleans (and "false" is truthy)
+            raise DeintError(f"{where}: blind={blind!r} must be true or false")
+        if blind:
             budget = d.get("label_budget")
-            if not isinstance(budget, int) or not 1 <= budget <= 256:
+            if type(budget) is not int or not 1 <= budget <= 256:
                 raise DeintError(f"{where}: label_budget={budget!r} must be an integer in [1, 256]")
             return cls(n_labels=budget, blind=True, **_scalars())
+        if "label_budget" in d:
+            raise DeintError(f"{where}: label_budget is for blind priors (\"blind\": true); anchored priors have "
+                             f"one label per period")
 
         def vector(key: str, n: int | None, positive: bool) -> np.ndarray | None:
             if key not in d:
@@ -136,11 +152,11 @@ class Priors:
             v = d[key]
             ok = isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
             arr = np.asarray(v, dtype=np.float64) if ok else None
-            if arr is None or not np.all(np.isfinite(arr)) or (positive and np.any(arr <= 0)) \
+            if arr is None or not np.all(np.abs(arr) <= MAX_MAGNITUDE) or (positive and np.any(arr < MIN_POSITIVE)) \
                     or (n is not None and arr.size != n) or arr.size == 0:
                 want = f"{n} " if n is not None else ""
-                raise DeintError(f"{where}: {key} must be a list of {want}finite{' positive' if positive else ''}"
-                                 f" numbers, got {v!r}")
+                raise DeintError(f"{where}: {key} must be a list of {want}{'positive ' if positive else ''}numbers of "
+                                 f"size in [{MIN_POSITIVE if positive else 0:g}, {MAX_MAGNITUDE:g}], got {v!r}"[:300])
             return arr
 
         period = vector("period", None, True)

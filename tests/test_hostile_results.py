@@ -237,3 +237,50 @@ def test_such_values_through_label_are_one_line(capsys, tmp_path, spec):
                          tmp_path / "l.csv")
     assert code == 2 and err.startswith(f"deint: error: policy {spec!r}: ") and err.count("\n") == 1
     assert not (tmp_path / "l.csv").exists()
+
+
+# ---------------------------------------------------------------------------------------------------
+# priors: strict booleans, magnitudes a tracker can represent
+# ---------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("priors,says", [
+    ({"blind": "false", "label_budget": 3}, "blind='false' must be true or false"),
+    ({"blind": "yes", "label_budget": 3}, "blind='yes' must be true or false"),
+    ({"blind": 1, "label_budget": 3}, "blind=1 must be true or false"),
+    ({"blind": True, "label_budget": True}, "label_budget=True must be an integer in [1, 256]"),
+    ({"period": [10.0], "label_budget": 3}, "label_budget is for blind priors"),
+    ({"period": [10.0, 17.0], "jitter_std": 1e200}, "jitter_std=1e+200 must be a number in [0.0, 1e+30]"),
+    ({"period": [5e-324, 17.0]}, "period must be a list of positive numbers of size in [1e-30, 1e+30]"),
+    ({"period": [10.0, 17.0], "phase": [1e300, 0.0]}, "phase must be a list of 2 numbers of size in [0, 1e+30]"),
+])
+def test_priors_fields_are_strict(tmp_path, priors, says):
+    from deint_env.errors import DeintError
+    from deint_env.formats import read_priors
+
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(priors))
+    with pytest.raises(DeintError) as err:
+        read_priors(path)
+    assert str(err.value).startswith(f"{path}: {says}")
+
+
+@pytest.mark.parametrize("info,says", [({"n_labels": -3}, "n_labels=-3 must be an integer >= 1"),
+                                       ({"n_labels": 2, "blind": "no"}, "blind='no' must be true or false")])
+def test_priors_from_info_are_checked(info, says):
+    from deint_env.episode import Priors
+    from deint_env.errors import DeintError
+
+    with pytest.raises(DeintError, match=says):
+        Priors.from_info(info)
+
+
+@pytest.mark.parametrize("policy", ["fdp", "mht", "dokf", "pt-post", "agile-kf", "renewal-ml", "genie"])
+def test_the_largest_representable_jitter_is_no_traceback(capsys, tmp_path, policy):
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv"), "--true-priors-out",
+                 str(tmp_path / "p.json")]) == 0
+    capsys.readouterr()
+    priors = json.loads((tmp_path / "p.json").read_text())
+    (tmp_path / "p.json").write_text(json.dumps({**priors, "jitter_std": 1e30}))
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy", policy,
+                         "-o", tmp_path / "l.csv")
+    assert (code == 0 and (tmp_path / "l.csv").exists()) or (code == 2 and err.count("\n") == 1), err
+    assert "Traceback" not in err

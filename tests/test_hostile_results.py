@@ -284,3 +284,18 @@ def test_the_largest_representable_jitter_is_no_traceback(capsys, tmp_path, poli
                          "-o", tmp_path / "l.csv")
     assert (code == 0 and (tmp_path / "l.csv").exists()) or (code == 2 and err.count("\n") == 1), err
     assert "Traceback" not in err
+
+
+def test_a_compressed_hdf5_bomb_within_the_array_limit_is_refused(capsys, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    import numpy as np
+
+    bomb = tmp_path / "bomb.h5"
+    with h5py.File(bomb, "w") as f:  # 1 GiB declared (the per-array limit), nothing stored: a few KB
+        f.create_group("metadata").create_dataset("feature_names", data=np.array([b"toa", b"amplitude"]))
+        f.create_dataset("data", shape=(2**26, 2), dtype="float64", chunks=(2**16, 2), compression="gzip")
+    size = bomb.stat().st_size
+    assert size < 20_000
+    code, _, err = deint(capsys, "label", bomb, "--policy", "random", "--n-sources", 2, "-o", tmp_path / "l.csv")
+    assert code == 2 and err == (f"deint: error: {bomb}: 'data' declares {2**30} bytes from a {size}-byte file; a "
+                                 f"dataset unpacks to at most 64 times its file's size (beyond 64 MiB)\n")

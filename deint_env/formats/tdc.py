@@ -385,9 +385,22 @@ def _dataset(h5py, path: Path, group: Any, name: str, hint: str) -> Any:
     return obj
 
 
+# A compressed dataset may unpack to at most this many times its file's size (beyond a floor that any
+# real train's labels fit in): gzip unpacks a run of zeros about 1000-fold, so a 9 KB file could declare
+# 1 GiB (within MAX_ARRAY_BYTES) and cost 10 GB once converted and sorted, while pulse descriptors
+# (float64 TOAs, frequencies, widths) compress at most a few-fold.
+MAX_EXPANSION, EXPANSION_FLOOR = 64, 64 * 2**20
+
+
 def _read(path: Path, dataset: Any, where: str) -> Any:
-    """A dataset's values, its declared size checked first."""
+    """A dataset's values, its declared size checked first (against the limit per array, and against
+    the file's own size for the expansion a compression bomb needs)."""
     check_array_size(dataset.shape or (), dataset.dtype.itemsize, f"{path}: '{where}'")
+    declared = int(np.prod(dataset.shape or (), dtype=np.float64)) * dataset.dtype.itemsize
+    size = path.stat().st_size
+    if declared > max(EXPANSION_FLOOR, MAX_EXPANSION * size):
+        raise DeintError(f"{path}: '{where}' declares {declared} bytes from a {size}-byte file; a dataset unpacks to "
+                         f"at most {MAX_EXPANSION} times its file's size (beyond {EXPANSION_FLOOR >> 20} MiB)")
     try:
         return dataset[()]
     except (OSError, ValueError) as e:

@@ -299,3 +299,20 @@ def test_a_compressed_hdf5_bomb_within_the_array_limit_is_refused(capsys, tmp_pa
     code, _, err = deint(capsys, "label", bomb, "--policy", "random", "--n-sources", 2, "-o", tmp_path / "l.csv")
     assert code == 2 and err == (f"deint: error: {bomb}: 'data' declares {2**30} bytes from a {size}-byte file; a "
                                  f"dataset unpacks to at most 64 times its file's size (beyond 64 MiB)\n")
+
+
+def test_a_variable_length_tdc_attribute_is_refused_before_labelling(capsys, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    import numpy as np
+
+    path = tmp_path / "vlen.h5"
+    with h5py.File(path, "w") as f:
+        f.create_group("metadata").create_dataset("feature_names", data=np.array([b"toa"]))
+        f.create_dataset("data", data=np.arange(20, dtype=np.float64).reshape(20, 1))
+        ragged = np.empty(2, dtype=h5py.vlen_dtype(np.dtype("int32")))
+        ragged[0], ragged[1] = np.array([1, 2], dtype="int32"), np.array([3], dtype="int32")
+        f["metadata"].attrs.create("ragged", ragged, dtype=h5py.vlen_dtype(np.dtype("int32")))
+    code, _, err = deint(capsys, "label", path, "--policy", "random", "--n-sources", 2, "-o", tmp_path / "out.h5")
+    assert code == 2 and err == (f"deint: error: {path}: metadata attribute 'ragged' holds variable-length or object "
+                                 f"values; TDC metadata attributes are strings, numbers or arrays of them\n")
+    assert not (tmp_path / "out.h5").exists()

@@ -351,7 +351,7 @@ def read_tdc(path: PathLike) -> TDCTrain:
         labels = None
         if _member(h5py, path, f, "labels") is not None:
             labels = _read(path, _dataset(h5py, path, f, "labels", "it holds the emitter ids"), "labels")
-        attrs = {k: _plain(v) for k, v in meta.attrs.items()}
+        attrs = {k: _attribute(path, k, v) for k, v in meta.attrs.items()}
     if not isinstance(values, np.ndarray):
         raise DeintError(f"{path}: data is a scalar; TDC data is 2-D (seq_len, n_features)")
     return TDCTrain(values, names, labels, attrs).validated(str(path))
@@ -405,6 +405,15 @@ def _read(path: Path, dataset: Any, where: str) -> Any:
         return dataset[()]
     except (OSError, ValueError) as e:
         raise DeintError(f"{path}: '{where}' cannot be read ({str(e).splitlines()[0]})") from None
+
+
+def _attribute(path: Path, key: str, v: Any) -> Any:
+    """A metadata attribute as plain data, refused now if it could not be written back with the labels
+    (a variable-length integer attribute failed only when the labels were written, after the work)."""
+    if isinstance(v, np.ndarray) and v.dtype.kind == "O" and not all(isinstance(x, (str, bytes)) for x in v.flat):
+        raise DeintError(f"{path}: metadata attribute {key!r} holds variable-length or object values; TDC metadata "
+                         f"attributes are strings, numbers or arrays of them")
+    return _plain(v)
 
 
 def _plain(v: Any) -> Any:

@@ -316,3 +316,21 @@ def test_a_variable_length_tdc_attribute_is_refused_before_labelling(capsys, tmp
     assert code == 2 and err == (f"deint: error: {path}: metadata attribute 'ragged' holds variable-length or object "
                                  f"values; TDC metadata attributes are strings, numbers or arrays of them\n")
     assert not (tmp_path / "out.h5").exists()
+
+
+def test_a_multi_output_command_checks_every_output_first(capsys, tmp_path):
+    good, folder = tmp_path / "good.csv", tmp_path / "DIR"
+    good.write_text("keep me\n")
+    folder.mkdir()
+    code, _, err = deint(capsys, "simulate", TARGET, "--seed", 1, "-o", good, "--priors-out", folder)
+    assert code == 2 and err == (f"deint: error: cannot write {folder}: it is a directory; outputs are written only "
+                                 f"to regular files (new or existing)\n")
+    assert good.read_text() == "keep me\n"  # not replaced before the directory was found
+
+
+def test_an_output_with_a_trailing_slash_is_refused(capsys, tmp_path):
+    out = f"{tmp_path / 'out.csv'}/"
+    code, _, err = deint(capsys, "simulate", TARGET, "--seed", 1, "-o", out)
+    assert code == 2 and err == f"deint: error: cannot write {out}: it names a directory (a trailing /); give a file " \
+                                f"name\n"
+    assert not (tmp_path / "out.csv").exists()

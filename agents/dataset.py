@@ -131,10 +131,16 @@ def _check(config: DatasetConfig) -> tuple[Path, dict[str, Any]]:
         raise DeintError(f"--env {config.env!r} is unknown; one of {', '.join(FLAVOURS)}")
     if config.seeds < 1:
         raise DeintError(f"--seeds={config.seeds} must be >= 1")
-    # Minari's id grammar, (namespace/)name-vN; a versioned id, so a re-export never overwrites
-    if not re.fullmatch(r"[\w.-]+(/[\w.-]+)*-v\d+", config.dataset_id):
-        raise DeintError(f"dataset id {config.dataset_id!r} is invalid: write NAMESPACE/NAME-vN, e.g. deint/core-fdp-v0")
-    parse_dataset_id(config.dataset_id)
+    # Minari's id grammar, (namespace/)name-vN; a versioned id, so a re-export never overwrites.  Each
+    # part starts with a letter, digit or underscore: an id is a path under the datasets root, and a
+    # part of dots ("../../x-v0") would leave it.
+    bad = f"dataset id {config.dataset_id!r} is invalid: write NAMESPACE/NAME-vN, e.g. deint/core-fdp-v0"
+    if not re.fullmatch(r"\w[\w.-]*(/\w[\w.-]*)*-v\d+", config.dataset_id):
+        raise DeintError(bad)
+    try:
+        parse_dataset_id(config.dataset_id)
+    except ValueError:
+        raise DeintError(bad) from None
     root = Path(config.root) if config.root is not None else Path(
         os.environ.get("MINARI_DATASETS_PATH") or Path.home() / ".minari" / "datasets")
     if (root / config.dataset_id).exists():

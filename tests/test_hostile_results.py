@@ -334,3 +334,13 @@ def test_an_output_with_a_trailing_slash_is_refused(capsys, tmp_path):
     assert code == 2 and err == f"deint: error: cannot write {out}: it names a directory (a trailing /); give a file " \
                                 f"name\n"
     assert not (tmp_path / "out.csv").exists()
+
+
+@pytest.mark.parametrize("dataset_id", ["../../evil/x-v0", "a/../b-v0", "deint/.hidden-v0"])
+def test_a_dataset_id_cannot_leave_the_datasets_root(capsys, tmp_path, dataset_id):
+    pytest.importorskip("minari")
+    code, _, err = deint(capsys, "dataset", dataset_id, "--suite", "core-v0", "--policy", "random", "--seeds", 1,
+                         "--root", tmp_path / "datasets")
+    assert code == 2 and err == (f"deint: error: dataset id {dataset_id!r} is invalid: write NAMESPACE/NAME-vN, e.g. "
+                                 f"deint/core-fdp-v0\n")
+    assert not any(tmp_path.rglob("*-v0"))

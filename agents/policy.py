@@ -69,8 +69,10 @@ class AgentPolicy:
     seeded per episode from the runner's policy seed."""
 
     def __init__(self, checkpoint: str, deterministic: bool = True):
+        if not isinstance(deterministic, bool):  # bool("maybe") is True: a typo would pass as a choice
+            raise DeintError(f"deterministic={deterministic!r} is invalid: true or false")
         self.checkpoint = str(Path(checkpoint).resolve())
-        self.deterministic = bool(deterministic)
+        self.deterministic = deterministic
         torch.set_num_threads(1)  # a batch of one observation: thread hand-offs cost more than they save
         ck, self._net = load_agent(self.checkpoint)
         self.meta, self.version = ck.meta, ck.key

@@ -344,3 +344,15 @@ def test_a_dataset_id_cannot_leave_the_datasets_root(capsys, tmp_path, dataset_i
     assert code == 2 and err == (f"deint: error: dataset id {dataset_id!r} is invalid: write NAMESPACE/NAME-vN, e.g. "
                                  f"deint/core-fdp-v0\n")
     assert not any(tmp_path.rglob("*-v0"))
+
+
+@pytest.mark.parametrize("value", ["maybe", "1", "0.5"])
+def test_an_agents_deterministic_flag_is_a_boolean(capsys, tmp_path, value):
+    pytest.importorskip("torch")
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv"), "--priors-out",
+                 str(tmp_path / "p.json")]) == 0
+    capsys.readouterr()
+    spec = f"dagger:deterministic={value}"
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy", spec,
+                         "-o", tmp_path / "l.csv")
+    assert code == 2 and "is invalid: true or false" in err and err.count("\n") == 1

@@ -25,6 +25,7 @@ import contextlib
 import ctypes
 import os
 import signal
+import socket
 import sys
 import time
 from collections import deque
@@ -382,6 +383,29 @@ def _run_pool(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], Non
             keep(rec)
 
 
+RAY_PROBE_SECONDS = 10.0
+# An HTTP/2 client preface and an empty SETTINGS frame (RFC 9113 3.4, 6.5): a gRPC server (Ray's GCS, a
+# Ray Client server) answers with a SETTINGS frame of its own (type 0x4) at once.
+_H2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _probe_ray(address: str) -> None:
+    """Fail within seconds, with one line, where joining a cluster that answers nothing would retry
+    for minutes (ray.init at a port that accepts and stays silent did not return in 200 s)."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise DeintError(f"address={address!r} is invalid: 'auto', HOST:PORT or ray://HOST:PORT")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_PROBE_SECONDS) as sock:
+            sock.settimeout(RAY_PROBE_SECONDS)
+            sock.sendall(_H2_HELLO)
+            head = sock.recv(9)
+    except OSError as e:
+        raise DeintError(f"cannot reach a Ray cluster at {address!r} ({e.strerror or e})") from None
+    if len(head) < 9 or head[3] != 4:
+        raise DeintError(f"cannot reach a Ray cluster at {address!r}: it does not answer as a Ray head (gRPC) does")
+
+
 def _run_ray(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None], address: str | None) -> None:
     """Play the jobs as Ray tasks and `keep` each record as it arrives (in completion order).
 
@@ -404,6 +428,8 @@ def _run_ray(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None
                 if address is None:
                     ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
                 else:
+                    if address != "auto":
+                        _probe_ray(address)
                     ray.init(address=address, logging_level=logging.WARNING)
             except ConnectionError as e:
                 raise DeintError(f"cannot reach a Ray cluster at {address!r} ({e})") from None

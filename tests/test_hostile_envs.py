@@ -67,3 +67,30 @@ def test_make_vec_refuses_a_non_boolean_clustering_flag():
 def test_evaluate_refuses_a_non_positive_seed_count(max_seeds):
     with pytest.raises(DeintError, match=r"max_seeds=.* is invalid: an integer >= 1 \(or None: every seed\)"):
         evaluate(["random"], SCENARIO, max_seeds=max_seeds, progress=False)
+
+
+def test_a_ray_address_that_answers_nothing_fails_within_seconds():
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as silent:  # accepts connections, never says a word
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        address = f"127.0.0.1:{silent.getsockname()[1]}"
+        code = ("from deint_env.runner import evaluate\n"
+                f"evaluate(['random'], {SCENARIO!r}, max_seeds=1, progress=False, executor='ray', address={address!r})")
+        # A process of its own: a Ray instance this test session already joined would be used instead.
+        # ray.init alone did not return in 200 s; "timed out" is the probe's own deadline.
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode != 0 and run.stderr.strip().splitlines()[-1] == (
+        f"deint_env.errors.DeintError: cannot reach a Ray cluster at {address!r} (timed out)")
+
+
+@pytest.mark.parametrize("address", ["nowhere", "host:port", ":6379"])
+def test_a_malformed_ray_address_is_one_line(address):
+    pytest.importorskip("ray")
+    from deint_env.runner import _probe_ray
+
+    with pytest.raises(DeintError, match=r"is invalid: 'auto', HOST:PORT or ray://HOST:PORT"):
+        _probe_ray(address)

@@ -21,6 +21,7 @@ Tables and JSON go to stdout, status lines to stderr.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import math
@@ -28,14 +29,14 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from deint_env import formats, tdc_scores
 from deint_env.formats import tdc
 from deint_env.errors import DeintError
-from deint_env.runner import json_ready
+from deint_env.results import json_ready  # not from runner, which imports every part of a run
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -147,7 +148,8 @@ def _add_label(sub) -> None:
                     "label -1 = spurious).  The policy sees only the pulses and the priors, never the file's "
                     "source columns.  Priors come from a priors file, or from --prior-periods (phases "
                     "unknown), or --n-sources alone (blind: N labels, no priors); a blind deinterleaver (cdif, sdif, "
-                    "pri-transform, dbscan, hdbscan) runs with none (32 labels).  `genie` labels from the "
+                    "pri-transform, dbscan, hdbscan, seq, renewal-ml) runs with none (32 labels) and measures "
+                    "the TOA noise itself.  `genie` labels from the "
                     "periods and phases in the priors file as if they were the truth: give it the file of "
                     "`deint simulate --true-priors-out` to get the oracle labelling.  A .h5/.hdf5 input or "
                     "output is a Turing Deinterleaving Challenge file (blind: give --n-sources N; a `tdc` "
@@ -171,10 +173,12 @@ BLIND_LABELS = 32  # the label budget of `deint label` with a blind policy and n
 
 
 def _finds_own_trains(spec: str) -> bool:
-    """Whether the policy plays only the blind mode (registry `modes`): it runs without priors."""
+    """Whether the policy runs without priors: it plays only the blind mode (registry `modes`), or its
+    class says it finds its own tracks in blind mode (`blind_ok`, as renewal-ml)."""
     from deint_env.policies import parse_policy_spec, policy_info
 
-    return policy_info(parse_policy_spec(spec)[0]).modes == ("blind",)
+    info = policy_info(parse_policy_spec(spec)[0])
+    return info.modes == ("blind",) or bool(getattr(info.load(), "blind_ok", False))
 
 
 def _cli_priors(args: argparse.Namespace):
@@ -225,6 +229,40 @@ def _policy_with_lag(spec: str, lag: int | None):
                      + ("" if knob is None else f" even with {knob}={lag}") + "; drop --lag")
 
 
+@contextlib.contextmanager
+def _compile_notice(spec: str) -> Iterator[None]:
+    """While inside, the first kernel numba compiles for the policy of `spec` prints one status line.
+    numba loads a kernel from its disk cache without compiling it, so the line appears exactly when a
+    wait is coming (the first run after an install or after a change of the kernel's source) and never
+    on a warm cache.  A policy whose module does not import numba gets nothing: importing numba just to
+    listen would cost every other policy its import time."""
+    from deint_env.policies import parse_policy_spec, policy_info
+
+    name = parse_policy_spec(spec)[0]
+    policy_info(name).load()  # imports the policy's module, and numba with it when the policy has kernels
+    if "numba" not in sys.modules:
+        yield
+        return
+    from numba.core import event
+    from numba.core.caching import NullCache
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev: event.Event) -> None:
+            if not self.said:
+                self.said = True
+                why = ("not cacheable: compiled in every process" if isinstance(ev.data["dispatcher"]._cache, NullCache)
+                       else "first run after an install or update; cached for later calls")
+                _status(f"deint: compiling {name}'s kernels ({why}) ...")
+
+        def on_end(self, ev: event.Event) -> None:
+            pass
+
+    with event.install_listener("numba:compile", Notice()):
+        yield
+
+
 def cmd_label(args: argparse.Namespace) -> int:
     from deint_env.policies import check_policy_seed, is_oracle
     from deint_env.runner import play
@@ -232,20 +270,21 @@ def cmd_label(args: argparse.Namespace) -> int:
     _check_paths({"PULSES": args.pulses, "--priors": args.priors}, {"-o": args.output})
     check_policy_seed(args.seed, "--seed")
     priors = _cli_priors(args)
-    policy = _policy_with_lag(args.policy, args.lag)
-    train = None
-    if tdc.is_tdc_path(args.pulses):  # a TDC file; a TDC model policy is given its full PDW rows
-        train = tdc.read_tdc(args.pulses)
-        episode = train.episode(priors, name=Path(args.pulses).name)
-        if hasattr(policy, "attach_data"):
-            policy.attach_data(train.model_input())
-        if hasattr(policy, "attach_features"):  # a blind deinterleaver: the file's other descriptors
-            policy.attach_features(train.features)
-    else:
-        episode = formats.read_pulses(args.pulses, priors)
-    t0 = time.perf_counter()
-    result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
-    seconds = time.perf_counter() - t0
+    with _compile_notice(args.policy):
+        policy = _policy_with_lag(args.policy, args.lag)
+        train = None
+        if tdc.is_tdc_path(args.pulses):  # a TDC file; a TDC model policy is given its full PDW rows
+            train = tdc.read_tdc(args.pulses)
+            episode = train.episode(priors, name=Path(args.pulses).name)
+            if hasattr(policy, "attach_data"):
+                policy.attach_data(train.model_input())
+            if hasattr(policy, "attach_features"):  # a blind deinterleaver: the file's other descriptors
+                policy.attach_features(train.features)
+        else:
+            episode = formats.read_pulses(args.pulses, priors)
+        t0 = time.perf_counter()
+        result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
+        seconds = time.perf_counter() - t0
     if tdc.is_tdc_path(args.output):  # a TDC file: the input's rows with the predicted labels
         tdc.write_labels(args.output, train or episode, result.labels, priors.n_labels, f"labels of {args.policy}")
     else:
@@ -763,8 +802,10 @@ def _leaderboard_report(board: dict[str, Any], folder: Path) -> None:
 
 
 def _check_reps(reps: int) -> None:
-    if reps < 100:
-        raise DeintError(f"--reps={reps} is invalid: an integer >= 100")
+    from deint_env.stats import MAX_REPS, MIN_REPS
+
+    if not MIN_REPS <= reps <= MAX_REPS:
+        raise DeintError(f"--reps={reps} is invalid: an integer in [{MIN_REPS}, {MAX_REPS}]")
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:

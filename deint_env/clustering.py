@@ -18,7 +18,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import gammaln
 
 _EPS = float(np.finfo(np.float64).eps)
 _EMI_CHUNK = 1 << 20  # terms of the expected-MI sum evaluated at once (bounds its memory to ~50 MB)
@@ -103,6 +102,7 @@ def expected_mutual_info(a: np.ndarray, b: np.ndarray, n: int) -> float:
     keep = length > 0
     ai, bj, weight, start, length = ai[keep], bj[keep], weight[keep], start[keep], length[keep]
     ln = math.log(n)
+    from scipy.special import gammaln  # here: scipy.special is slow to import
     lgf = gammaln(np.arange(n + 2, dtype=np.float64))  # log(k - 1)!: every gamma argument is an integer
     # per pair: log(a! b! (n-a)! (n-b)! / n!) and log(a b)
     const = lgf[ai + 1] + lgf[bj + 1] + lgf[n - ai + 1] + lgf[n - bj + 1] - lgf[n + 1]

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from deint_env import clustering
 from deint_env.labels import correct_anchored, correct_link, true_predecessors
@@ -87,6 +86,7 @@ def matched_labels(labels: np.ndarray, source: np.ndarray, n_labels: int) -> np.
     both = real_l & real_s
     conf = np.zeros((n_labels, max(k, 1)), dtype=np.int64)
     np.add.at(conf, (labels[both], source[both]), 1)
+    from scipy.optimize import linear_sum_assignment  # here: scipy.optimize is slow to import (`deint --help`)
     rows, cols = linear_sum_assignment(-conf)
     lut = np.full(n_labels + 1, spur, dtype=np.int64)
     lut[rows] = cols

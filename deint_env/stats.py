@@ -74,8 +74,20 @@ def _blocks(strata: list[np.ndarray]) -> tuple[list[np.ndarray], list[list[int]]
     return [np.stack([strata[i] for i in idx], axis=1) for idx in order], order
 
 
+# Bootstrap replicates: every replicate's statistics are kept (--reps 10^8 asked for 41 GiB); 10^5 is 50
+# times rliable's 2000, far past where a 95 % interval's bounds stop moving.
+MIN_REPS, MAX_REPS = 100, 100_000
+
+
+def check_reps(reps: object) -> int:
+    if not isinstance(reps, int) or isinstance(reps, bool) or not MIN_REPS <= reps <= MAX_REPS:
+        raise DeintError(f"reps={reps!r} is invalid: an integer in [{MIN_REPS}, {MAX_REPS}] (bootstrap replicates)")
+    return reps
+
+
 def _bootstrap(blocks: list[np.ndarray], stat, reps: int, seed: int) -> np.ndarray:
     """rliable's percentile interval of `stat(*blocks)`: a (2, k) array of low and high bounds."""
+    check_reps(reps)
     library, _ = rliable()
     with _seeded(seed):
         _, cis = library.get_interval_estimates({"x": blocks}, stat, reps=reps,

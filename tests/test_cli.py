@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -314,3 +315,41 @@ def test_console_script_end_to_end(tmp_path):
     assert r.returncode == 2 and r.stderr.splitlines() == [
         "deint: error: u.csv: line 3: toa=1.0 is smaller than the previous line's toa=2.0; "
         "pulses must be sorted by increasing toa"]
+
+
+TOY_KERNEL = '''
+import numba
+
+from baselines.floors import RandomPolicy
+
+
+@numba.njit(cache=True)
+def bump(x):
+    return x + 1
+
+
+class Toy(RandomPolicy):
+    def act(self, obs):
+        bump(1)
+        return super().act(obs)
+'''
+
+
+def test_label_says_it_compiles_only_when_a_kernel_is_not_cached(tmp_path):
+    """One "compiling" line on the run that compiles the policy's kernel into an empty numba cache, none
+    on the next run, which loads it from there."""
+    (tmp_path / "toy_kernel.py").write_text(TOY_KERNEL)
+    assert main(["simulate", SCENARIO, "--seed", "0", "-o", "p.csv", "--priors-out", "p.json"]) == 0
+    code = ("import sys\n"
+            "from deint_env.policies import register_policy\n"
+            "from deint_env.cli import main\n"
+            "register_policy('toy', 'toy_kernel:Toy')\n"
+            "sys.exit(main(['label', 'p.csv', '--priors', 'p.json', '--policy', 'toy', '-o', 'l.csv']))")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": os.pathsep.join([str(tmp_path), str(Path(__file__).resolve().parents[1])])}
+    runs = [subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env)
+            for _ in range(2)]
+    assert [r.returncode for r in runs] == [0, 0], runs[0].stderr + runs[1].stderr
+    notice = "deint: compiling toy's kernels (first run after an install or update; cached for later calls) ..."
+    assert runs[0].stderr.splitlines()[0] == notice
+    assert "compiling" not in runs[1].stderr and "labelled" in runs[1].stderr

@@ -5,6 +5,8 @@ graph has no cycle."""
 from __future__ import annotations
 
 import ast
+import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -87,3 +89,55 @@ def test_every_module_imports_in_a_fresh_interpreter():
             "print(len(sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-2000:]
+
+
+# Libraries a command must not import unless it uses them: each costs a fresh `deint` process from 0.3 s
+# (numba) to seconds (scipy.signal, scikit-learn, torch) before any work (issue 22; times in
+# benchmarks/bench_startup.py, never asserted here).
+HEAVY = ("numba", "scipy", "sklearn", "torch")
+
+
+def loaded_after(code: str, tmp_path: Path) -> set[str]:
+    """The modules a fresh interpreter holds after running `code` in the source tree (cwd tmp_path)."""
+    script = f"import sys, json\n{code}\nprint('MODULES=' + json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr[-2000:]
+    line = next(x for x in out.stdout.splitlines() if x.startswith("MODULES="))
+    return set(json.loads(line.removeprefix("MODULES=")))
+
+
+def heavy(mods: set[str]) -> list[str]:
+    return sorted({m.split(".")[0] for m in mods} & set(HEAVY))
+
+
+def test_import_deint_env_registers_the_envs_and_imports_no_heavy_library(tmp_path):
+    mods = loaded_after("import deint_env, gymnasium\nassert 'deint_env/Deinterleave-v0' in gymnasium.registry",
+                        tmp_path)
+    assert "deint_env" in mods and not heavy(mods), heavy(mods)
+
+
+def test_deint_help_imports_no_policy_and_no_heavy_library(tmp_path):
+    mods = loaded_after("from deint_env.cli import main\nassert main(['--help']) == 0", tmp_path)
+    assert "deint_env.cli" in mods and not heavy(mods), heavy(mods)
+    assert not {m for m in mods if m.split(".")[0] in ("baselines", "agents")}
+
+
+def test_deint_policies_imports_the_providers_but_no_algorithm(tmp_path):
+    mods = loaded_after("from deint_env.cli import main\nassert main(['policies']) == 0", tmp_path)
+    assert {"baselines", "agents"} <= mods and not heavy(mods), heavy(mods)
+    assert not {m for m in mods if m.startswith(("baselines.", "agents."))}
+
+
+def test_labelling_imports_only_what_the_policy_needs(tmp_path):
+    """`deint label` with a policy without kernels loads no numba (scipy: the env's metrics use its
+    assignment solver); building one with kernels loads numba but not scikit-learn or torch."""
+    plain = loaded_after("from deint_env.cli import main\n"
+                         "assert main(['simulate', 'core-v0/core-n2-spread4-jitter0.05', '--seed', '0', '-o', 'p.csv', "
+                         "'--priors-out', 'p.json']) == 0\n"
+                         "assert main(['label', 'p.csv', '--priors', 'p.json', '--policy', 'pt-post', "
+                         "'-o', 'l.csv']) == 0",
+                         tmp_path)
+    assert "baselines.pt" in plain and not {"numba", "sklearn", "torch"} & {m.split(".")[0] for m in plain}
+    compiled = loaded_after("from deint_env.policies import make_policy\nmake_policy('fdp')", tmp_path)
+    assert "numba" in compiled and not {"sklearn", "torch"} & {m.split(".")[0] for m in compiled}

@@ -35,8 +35,8 @@ import numpy as np
 from numba import njit
 
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
-from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, _count, _initiate, _rates, _step,
-                           mlp)
+from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, _count, _initiate, _prior_ahead, _rates,
+                           _step, mlp)
 from deint_env.errors import DeintError
 from deint_env.labels import correct_anchored
 from deint_env.policies import policy_info
@@ -162,10 +162,13 @@ def _follow(toa, ok, cur, nxt, zob, prior, w, cfg, net, counts, u, beta, feat, b
     size = 1
     acc = np.empty(net.b1.shape[0])
     for k in range(n_pulses):
-        log_q, log_1mq, log_rho = _rates(cfg, counts)
-        if k == 0 and cfg.initiate:
-            end = min(cfg.reserve + 1, np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right"))
-            _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
+        log_q, log_1mq, log_rho = _rates(cfg, counts, toa[k - 1] - toa[0] if k > 0 else 0.0)
+        if k == 0:
+            if cfg.initiate:
+                end = min(cfg.reserve + 1, np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right"))
+                _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
+            if cfg.prior_ahead:
+                _prior_ahead(toa, n_pulses, cur, cfg, log_q, log_1mq, w)
         w.parent[:] = -1  # candidates are written from 0 on: the first untouched row ends them
         size = _step(toa, n_pulses, k, size, cur, nxt, zob, prior, cfg.start_beam, cfg.look, cfg, log_q, log_1mq,
                      log_rho, w, net, True)

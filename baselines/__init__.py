@@ -28,7 +28,10 @@ POLICIES = (
     # decorrelating dropout reset, unknown phases uniform over the first period; pt-post coasts off a clean channel
     PolicyInfo("pt-post", "baselines.pt:PTPost", modes=ANCHORED, version=2,
                description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)"),
-    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=2,
+    # dokf version 3 (issue #22): the start beam for every start (known phases too), missed arrivals scored
+    # whenever coasting (a stated missing_prob of 0 turned them off), Theorem 1's lambda floored after the
+    # start (a stated spurious_rate of 0 turned the test off); labels change on every suite (pt-post's on none)
+    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=3,
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them); version 3: joint
@@ -39,7 +42,11 @@ POLICIES = (
     # frequencies (source_prob), the start is the likeliest of three whole initialisations over the buffered
     # window, and the tracks' labels are assigned by their periods (changes only such scenes, e.g. paper-v0's
     # MK94 VI-A/VI-B and CM00 ones; core-v0, robust-v0 and scale-v0 are labelled as by version 4)
-    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=5,
+    # version 6 (issue #22): a track not started carries its prior's look-ahead when the priors predict every
+    # first arrival; unknown rates estimated from the buffered start, then from the decisions held to the
+    # pulse count (labels change where rates are unknown, on paper-v0's mk94-two-var3, and where a source
+    # starts late: its prior look-ahead is then misplaced -- one robust-onset test episode, -0.14)
+    PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=6,
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
     PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,

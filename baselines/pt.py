@@ -51,7 +51,9 @@ hypothesis goes through DM89's Theorem 1 test (`deint_env.receiver.is_spurious`,
 uniform arrival over one period) with prior odds lambda : (1 - lambda) P_D q^m, lambda = r / (1 + r)
 the probability that a received pulse is spurious, P_D = 1 - q the detection probability and m the
 hypothesis's misses; a pulse it calls spurious gets the spurious label and updates nothing.
-pt-prior has no Step 1 (its choice ignores y), so no test.
+pt-prior has no Step 1 (its choice ignores y), so no test.  A coasting tracker tests after its start
+(two longest periods) even on a channel stated free of spurious pulses, with lambda 1e-6: a pulse far
+outside every gate is then a slipped track's, and forced onto another track it would slip that one too.
 
 Unknown rates (NaN in the priors, or `rates="estimate"`: both) are estimated online from the
 tracker's own decisions with a weak Beta prior (mean 0.05, worth 20): q = (misses + 1) / (arrivals
@@ -60,11 +62,13 @@ tracker's own decisions with a weak Beta prior (mean 0.05, worth 20): q = (misse
 unknown phases are being acquired (two longest periods) decisions are not counted: a wrong start
 would otherwise feed itself back into lambda.
 
-Start beam (`dokf`, unknown phases).  Which fresh track a first pulse starts is a guess that a single
-decision gets wrong too often (then every track holds another source's pulses: 0.002 of the labels
-right on one test file), so until two longest periods have passed `dokf` keeps the 32 best
-labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs
-them), labels each pulse by the best at once (lag 0), and then goes on from the best alone.
+Start beam (`dokf`).  Which fresh track a first pulse starts is a guess that a single decision gets
+wrong too often (then every track holds another source's pulses: 0.002 of the labels right on one
+test file), so until two longest periods have passed `dokf` keeps the 32 best labellings (each
+extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs them), labels each
+pulse by the best at once (lag 0), and then goes on from the best alone.  Known phases too: with the
+priors' default phase deviation (5 % of the period) the first arrivals of dense sources fall in each
+other's gates, and a single decision lost 0.8 of core-v0's 8-source labels (issue #22).
 """
 
 from __future__ import annotations
@@ -84,8 +88,9 @@ _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for no
 _CHUNK = 4096  # uniforms drawn per refill: one per pulse, so labels do not depend on the chunking
 _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rate
 _Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
+_LAM_FLOOR = 1e-6  # and its least spurious probability: a pulse no track can explain stays spurious (mht's _R_ZERO)
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
-_START_BEAM = 32  # labellings kept while `dokf` acquires unknown phases
+_START_BEAM = 32  # labellings kept during `dokf`'s start
 _AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
@@ -162,8 +167,11 @@ class ProbabilisticTeacher:
         if self._coast_param is None and not (q == 0.0 and r == 0.0):  # auto: VI-C-3's remedies off a clean channel
             self.coast = True
             self.reset_after = _AUTO_RESET if self._reset_param is None else self._reset_param
-        # misses are hypotheses when coasting, or when the channel may miss pulses at all
-        self._misses = not q == 0.0
+        # misses are hypotheses when coasting (its q is floored: a merged pulse, or one the tracker gave
+        # another source, leaves a track a period behind whatever the channel), or when the channel may
+        # miss pulses at all.  Only the latter was tested, so a dokf told "missing_prob": 0 could not read
+        # a pulse it had given another track as its own source's miss (issue #22)
+        self._misses = self.coast or not q == 0.0
         self._q = _PRIOR_MEAN if math.isnan(q) else q
         self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
         self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
@@ -171,6 +179,7 @@ class ProbabilisticTeacher:
         self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
         self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
         self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
+        self._start_end = math.inf  # the start (two longest periods from the first pulse) ends then
         self._started = False
         self._beam: list[tuple[float, _TrackState]] | None = None  # the start's labellings (`_start_beam`)
         self._rng = policy_rng(info, self.seed)
@@ -183,12 +192,10 @@ class ProbabilisticTeacher:
         not counted as evidence about the channel (a wrong start would feed itself back into lambda),
         and `dokf` makes them by the start beam (`_start_beam`)."""
         self._started = True
-        if self._guessed.any():
-            self._settled = y + 2.0 * float(np.max(self.priors.period))
-            if self.teacher == "decision":
-                self._beam = [(0.0, self._save())]
-        else:
-            self._settled = -math.inf
+        self._start_end = y + 2.0 * float(np.max(self.priors.period))
+        self._settled = self._start_end if self._guessed.any() else -math.inf
+        if self.teacher == "decision":
+            self._beam = [(0.0, self._save())]
 
     def _uniform(self) -> float:
         if not self._u:
@@ -202,6 +209,16 @@ class ProbabilisticTeacher:
             self._q = (self._missed + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._hits + self._missed + _PRIOR_WEIGHT)
         if self._r_known != self._r_known:
             self._lam = (self._called + _PRIOR_MEAN * _PRIOR_WEIGHT) / (self._pulses + _PRIOR_WEIGHT)
+
+    def _spurious_prob(self, y: float) -> float:
+        """lambda of Theorem 1's test, floored when coasting after the start: with "spurious_rate": 0 the
+        test never ran, so a pulse of a source whose track had slipped was forced onto the nearest other
+        track, which slipped in turn (dokf: 0.12 of the labels right on 16 dense sources, 0.78 with the
+        rate unknown; issue #22).  The floor only lets a pulse far outside every gate (~6 deviations) be
+        spurious.  Not during the start (two longest periods): there a far pulse says a prior is wrong,
+        and taking it is how the KF learns the period (MK94 V-B-2's x_{1|0} = (60, 96) for periods
+        (11, 80): 0.20 of the labels right with the floor from the first pulse, 0.84 without)."""
+        return max(self._lam, _LAM_FLOOR) if self.coast and y > self._start_end else self._lam
 
     def _coast(self, y: float) -> None:
         """VI-C-3: skip the missed arrivals of every source overdue at y (`coast`), resetting a source
@@ -296,17 +313,18 @@ class ProbabilisticTeacher:
         self._rates()
         counted = y > self._settled
         if self._beam is not None:
-            if not counted:
+            if y <= self._start_end:
                 return self._start_beam(y)
             self._beam = None  # the start is over: on from the best labelling alone (loaded)
         c = self.candidates(y)
         best = int(np.argmax(c.score))
         self._pulses += counted
-        if self._lam > 0 and self.teacher != "prior":
+        lam = self._spurious_prob(y)
+        if lam > 0 and self.teacher != "prior":
             # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
             # (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)
-            pulse = (1.0 - self._lam) * math.exp(float(c.miss[best]))
-            lam = self._lam / (self._lam + pulse)
+            pulse = (1.0 - lam) * math.exp(float(c.miss[best]))
+            lam = lam / (lam + pulse)
             if is_spurious(float(c.e[best]), float(c.s[best]), lam, float(c.pred.period[best]) ** 2 / 12.0):
                 self._called += counted
                 return self.n
@@ -351,7 +369,7 @@ class ProbabilisticTeacher:
         spread density around its best hypothesis), the best `_START_BEAM` kept; each pulse is labelled
         at once by the best, and after the start the tracker goes on from the best alone.  One kept
         labelling reproduces the single-decision rule exactly."""
-        lam = self._lam
+        lam = self._spurious_prob(y)
         log_pulse = math.log1p(-lam)
         children = []
         for score, state in self._beam:

@@ -1,0 +1,72 @@
+"""Dense constant-PRI scenes from an independent generator (tests/independent_gen.py: plain numpy, not
+deint_env.sim), labelled through `deint label` and scored against the generator's truth (issue #22:
+rates left out of the priors, or stated 0, on clean dense channels).
+
+The issue's acceptance, per cell of N in {3, 8, 16} sources x white TOA jitter {0.01, 0.03, 0.06} of the
+shortest period x rates {stated (a 2 % missing, 2 % spurious channel, stated truly), unknown (left out
+of the priors), stated 0 (both clean)}: mht >= max(fdp, dokf) - 0.01, and no tracker below 0.5 where
+fdp is above 0.8.  The default run checks a few short cells for the causes fixed (an estimated rate
+costing mht its tracks, a stated 0 breaking dokf); the whole matrix is the slow test.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from independent_gen import RATES, run_cell
+
+TRACKERS = ("mht", "dokf", "lmht", "fdp-ll", "pt-post")
+
+
+def _acceptance(acc: dict[str, float], trackers: tuple[str, ...]) -> list[str]:
+    """The issue's acceptance on one cell's accuracies: the failures, as readable lines."""
+    bad = []
+    if acc["mht"] < max(acc["fdp"], acc["dokf"]) - 0.01:
+        bad.append(f"mht {acc['mht']:.3f} < max(fdp {acc['fdp']:.3f}, dokf {acc['dokf']:.3f}) - 0.01")
+    if acc["fdp"] > 0.8:
+        bad += [f"{t} {acc[t]:.3f} < 0.5 with fdp {acc['fdp']:.3f}" for t in trackers if acc[t] < 0.5]
+    return bad
+
+
+def test_rate_estimates_cost_mht_nothing_on_a_clean_dense_channel(tmp_path):
+    """8 sources, jitter 0.06 of the shortest period (the issue's first file): with the rates left out
+    mht labels as well as told the channel is clean.  Before the fixes its online rate estimate ran away
+    (its long-period tracks never started, their pulses went spurious, so the spurious rate rose):
+    0.19 of 2000 labels right, 0.67 told 0, fdp 0.83."""
+    acc = {rates: run_cell(tmp_path, 8, 0.06, rates, 2000, 1, ("mht", "fdp")) for rates in ("unknown", "zero")}
+    assert acc["unknown"]["mht"] >= acc["zero"]["mht"] - 0.01, acc
+    assert acc["unknown"]["mht"] >= acc["unknown"]["fdp"] - 0.05, acc
+
+
+def test_a_stated_zero_rate_does_not_break_dokf(tmp_path):
+    """Told "missing_prob": 0, "spurious_rate": 0 dokf labels about as well as with the rates unknown
+    (before: no missed-arrival hypotheses and no spurious test, so one wrong decision of a dense start
+    left tracks a period behind for good: 0.20 against 0.69 unknown on 8 sources at jitter 0.01)."""
+    acc = {rates: run_cell(tmp_path, 8, 0.01, rates, 800, 1, ("dokf", "fdp")) for rates in ("unknown", "zero")}
+    assert acc["zero"]["dokf"] >= acc["unknown"]["dokf"] - 0.03, acc
+    assert acc["zero"]["dokf"] >= acc["zero"]["fdp"] - 0.1, acc
+
+
+@pytest.mark.parametrize("n,jitter,rates", [(3, 0.06, "zero"), (8, 0.03, "unknown"), (8, 0.01, "stated")])
+def test_acceptance_on_cells_of_the_matrix(tmp_path, n, jitter, rates):
+    """The acceptance on three cells (2000 pulses, the first file of each), for the trackers that meet it
+    there: pt-post does not (see the slow test)."""
+    trackers = tuple(t for t in TRACKERS if t != "pt-post")
+    acc = run_cell(tmp_path, n, jitter, rates, 2000, 1, ("fdp",) + trackers)
+    assert not _acceptance(acc, trackers), acc
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue #22's acceptance is not met everywhere yet (rates unknown or 0): mht "
+                   "is below fdp - 0.01 on 8 sources at jitter 0.06 and 16 at 0.03 and 0.06; pt-post (MK94's "
+                   "sampling teacher) is below 0.5 on the 8- and 16-source cells where fdp is above 0.8, fdp-ll on "
+                   "16 sources at 0.01, dokf on 16 sources at 0.01 with the rates stated 0")
+def test_acceptance_on_the_whole_matrix(tmp_path):
+    """Every cell of the matrix, 2000 pulses (benchmarks/bench_dense.py prints the table)."""
+    failures = []
+    for n, jitter, rates in itertools.product((3, 8, 16), (0.01, 0.03, 0.06), RATES):
+        acc = run_cell(tmp_path, n, jitter, rates, 2000, 1, ("fdp",) + TRACKERS)
+        failures += [f"N={n} jitter={jitter} {rates}: {line}" for line in _acceptance(acc, TRACKERS)]
+    assert not failures, "\n".join(failures)

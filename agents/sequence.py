@@ -48,6 +48,7 @@ ARCHITECTURE = "seq-pointer"
 FEATURE_LAYOUT = "pointer-pairs"
 FEATURE_VERSION = 2
 DEFAULT_MARGIN = 2.0  # ChainDecoder's margin in play (chosen on validation seeds: 0 and 1e9 did worse)
+MAX_PULSES = 100_000  # a longer record is refused (reset): at about 1 ms a pulse it would run for minutes
 DECODER_VERSION = 2  # bump when ChainDecoder's labels change: results are keyed on it with the checkpoint
 BACK_MULTIPLES = (1.0, 2.0, 3.0)  # t_i - m d
 FORWARD_MULTIPLES = (1.0, 2.0, 3.0)  # t_j + m d (the look-ahead)
@@ -359,6 +360,9 @@ class SequencePolicy:
             raise NotApplicable("seq finds its own trains: blind scenarios only (mapping chains to prior tracks is "
                                 "not done)")
         self._amp = bool(info.get("has_amplitude", False))
+        if (info.get("n_pulses") or 0) > MAX_PULSES:  # ~1 ms a pulse on a CPU: minutes beyond this
+            raise DeintError(f"seq labels at most {MAX_PULSES} pulses in one run (about 1 ms a pulse); this "
+                             f"record has {info['n_pulses']}: split it into files of fewer pulses")
         cap = int(info.get("n_pulses") or 1024)
         self._toa = np.zeros(cap)
         self._ampl = np.zeros(cap) if self._amp else None

@@ -13,10 +13,18 @@ tau.  The kinds (`deint_env.scenario.Modulation` defines the simulated ones):
 - ``stagger``: theta = the m sub-PRIs, phi(n) = e_{n mod m}: the cycle position is n, carried by
   the emission count, so the state is augmented with the levels, not with a discrete position.
 - ``dwell_switch``: theta = the m dwell PRIs, phi(n) = e_{(n // c) mod m} (c pulses a dwell).
-- ``sliding``: theta = (T, T depth), phi(n) = (1, (n mod L)/(L - 1) - 1/2): the saw-tooth's ramp,
-  its slope a state (the PRI rate per cycle), reset every L pulses.
+- ``sliding``: theta = (T, T depth), phi(n) = (1, ((n + o) mod L)/(L - 1) - 1/2): the saw-tooth's ramp,
+  its slope a state (the PRI rate per cycle), reset every L pulses (depth: the sweep over T, whatever
+  the priors' `relative_to`).
 - ``sinusoidal``: theta = (T, a, b), phi(n) = (1, sin(2 pi n / L), cos(2 pi n / L)): a wobulation of
   known period L and unknown phase psi is linear in its quadratures (a, b) = T depth (cos psi, sin psi).
+  A cycle L that is not a whole number of pulses has no finite table: theta = (T, s, c) rotates instead,
+  (s, c)_{n+1} = R(2 pi / L) (s, c)_n with s_n = T depth sin(2 pi n / L + psi), and phi = (1, 1, 0).
+- ``random_stagger``: theta = T; PRI_n = T u[s_n] with the level s_n random (i.i.d. or Markov), so the
+  next arrival is a mixture over level sequences, not one Gaussian: `baselines.agile` scores it as the
+  renewal density it is (`JumpLevels`); its table [[1]] gives the mean PRI T.
+- random cycle position (``Modulation.random_start``): one model per cycle offset o, a bank whose
+  model probabilities find the offset.
 - ``trend``: theta = (T, dT), A = [[1, 1], [0, 1]], phi = (1, 0): a PRI with a rate state driven by
   noise (a local linear trend), for a sliding or wobulated PRI whose cycle is not known.
 - ``switch``: theta = T drawn afresh around the prior period at each pulse (A = 0 and a known input):
@@ -38,8 +46,42 @@ import numpy as np
 from deint_env.errors import DeintError
 from deint_env.scenario import Modulation
 
-KINDS = ("constant", "drifting", "stagger", "dwell_switch", "sliding", "sinusoidal", "trend", "switch")
+KINDS = ("constant", "drifting", "stagger", "dwell_switch", "sliding", "sinusoidal", "random_stagger", "trend",
+         "switch")
 TAU = 0  # the arrival's index in the state; theta follows
+
+
+@dataclass(frozen=True, eq=False)
+class JumpLevels:
+    """A PRI switching among K levels at random: PRI_n = T ratio[s_n], P(s_n = j | s_{n-1} = i) =
+    transition[i, j] (i.i.d. levels: every row the same), the first interval's level from `start`."""
+
+    ratio: np.ndarray  # (K,)
+    transition: np.ndarray  # (K, K), row-stochastic
+    start: np.ndarray  # (K,)
+
+    def sequences(self, r_max: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The runs of r = 0..r_max intervals after an interval of level a, grouped by (level counts,
+        last level), as columns: S (C,) the run's length over T, r (C,), the last level (C,; -1 for
+        the empty run, which keeps a) and log P(run | a) (K, C) (-inf where impossible)."""
+        k = self.ratio.size
+        prob: dict[tuple[tuple[int, ...], int], np.ndarray] = {}
+        cur = {((0,) * k, a): np.eye(k)[a] for a in range(k)}  # (counts, last) -> P(run | a) for each a
+        for _ in range(r_max):
+            nxt: dict[tuple[tuple[int, ...], int], np.ndarray] = {}
+            for (counts, last), p in cur.items():
+                for j in range(k):
+                    step = p * self.transition[last, j]
+                    if step.any():
+                        key = (tuple(c + (i == j) for i, c in enumerate(counts)), j)
+                        nxt[key] = nxt.get(key, 0.0) + step
+            prob.update(nxt)
+            cur = nxt
+        counts = np.array([c for c, _ in prob], dtype=np.float64).reshape(-1, k)
+        with np.errstate(divide="ignore"):
+            logp = np.log(np.stack(list(prob.values()), axis=1)) if prob else np.zeros((k, 0))
+        return (np.r_[0.0, counts @ self.ratio], np.r_[0, counts.sum(axis=1)].astype(np.int64),
+                np.r_[-1, [last for _, last in prob]].astype(np.int64), np.hstack([np.zeros((k, 1)), logp]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +100,7 @@ class PRIModel:
     family: str = ""  # models of one non-empty family share theta's meaning: IMM mixes their states
     offset: np.ndarray | None = None  # (d,) b: theta' = A theta + b T + v (a PRI drawn afresh around T)
     anchored: bool = False  # the unknown shape keeps the cycle's mean PRI at T (spread only across levels)
+    jumps: JumpLevels | None = None  # random_stagger: the level process (scored by `baselines.agile`)
 
     @property
     def dim(self) -> int:
@@ -69,7 +112,7 @@ class PRIModel:
 
 
 def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None, family: str = "", offset=None,
-           anchored: bool = False) -> PRIModel:
+           anchored: bool = False, jumps: JumpLevels | None = None) -> PRIModel:
     table = np.atleast_2d(np.asarray(table, dtype=np.float64))
     d = table.shape[1]
     return PRIModel(kind, table,
@@ -77,7 +120,7 @@ def _model(kind: str, table, transition=None, noise=None, unit=None, spread=None
                     np.zeros((d, d)) if noise is None else np.asarray(noise, dtype=np.float64),
                     np.ones(d) if unit is None else np.asarray(unit, dtype=np.float64),
                     np.zeros(d) if spread is None else np.asarray(spread, dtype=np.float64), family,
-                    None if offset is None else np.asarray(offset, dtype=np.float64), anchored)
+                    None if offset is None else np.asarray(offset, dtype=np.float64), anchored, jumps)
 
 
 # theta_0 is the PRI in force (and theta_1, if any, its rate): these models' states mix (IMM)
@@ -102,18 +145,25 @@ def stagger(m: int, pattern: tuple[float, ...] | None = None, spread: float = 0.
                   anchored=pattern is None)
 
 
-def dwell_switch(pattern: tuple[float, ...], cycle: int) -> PRIModel:
+def dwell_switch(pattern: tuple[float, ...], cycle: int, dwells: tuple[int, ...] = (), offset: int = 0,
+                 unit: np.ndarray | None = None) -> PRIModel:
+    """Level j held `cycle` pulses (or dwells[j]); unit: the level PRIs over T (default pattern / mean)."""
     m = len(pattern)
-    table = np.repeat(np.eye(m), cycle, axis=0)
-    return _model("dwell_switch", table, unit=np.asarray(pattern) / np.mean(pattern))
+    table = np.roll(np.repeat(np.eye(m), dwells if dwells else cycle, axis=0), -offset, axis=0)
+    return _model("dwell_switch", table, unit=np.asarray(pattern) / np.mean(pattern) if unit is None else unit)
 
 
-def sliding(depth: float, cycle: int) -> PRIModel:
-    ramp = np.arange(cycle) / (cycle - 1) - 0.5
+def sliding(depth: float, cycle: int, offset: int = 0) -> PRIModel:
+    ramp = (np.arange(cycle) + offset) % cycle / (cycle - 1) - 0.5
     return _model("sliding", np.stack([np.ones(cycle), ramp], axis=1), unit=[1.0, depth])
 
 
-def sinusoidal(cycle: int, depth: float) -> PRIModel:
+def sinusoidal(cycle: int | float, depth: float) -> PRIModel:
+    if not float(cycle).is_integer():  # rotate the quadratures: PRI_n = T + s_n
+        c, s = np.cos(2 * np.pi / cycle), np.sin(2 * np.pi / cycle)
+        return _model("sinusoidal", [[1.0, 1.0, 0.0]], [[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]],
+                      unit=[1.0, 0.0, 0.0], spread=[0.0, depth / np.sqrt(2), depth / np.sqrt(2)])
+    cycle = int(cycle)
     w = 2 * np.pi * np.arange(cycle) / cycle
     # psi uniform: a and b have mean 0 and second moment (T depth)^2 / 2 each
     return _model("sinusoidal", np.stack([np.ones(cycle), np.sin(w), np.cos(w)], axis=1), unit=[1.0, 0.0, 0.0],
@@ -131,6 +181,27 @@ def switch(spread: float = 0.25) -> PRIModel:
     return _model("switch", [[1.0]], [[0.0]], [[spread ** 2]], family=PRI_FAMILY, offset=[1.0])
 
 
+def random_stagger(mod: Modulation) -> PRIModel:
+    """PRI_n = T ratio[s_n] with the levels of a `random_stagger` modulation (see `JumpLevels`)."""
+    m = len(mod.pattern)
+    start = mod.level_probs()
+    trans = np.array(mod.transition) if mod.transition else np.repeat(start[None], m, axis=0)
+    return _model("random_stagger", [[1.0]], jumps=JumpLevels(mod.level_ratios(), trans, start))
+
+
+def bank_from_modulation(mod: Modulation, period: float) -> tuple[PRIModel, ...]:
+    """The bank of a source whose priors name its modulation: its model, or, when the cycle position
+    of its first pulse is random (`random_start`), one model per position."""
+    if not mod.random_start:
+        return (from_modulation(mod, period),)
+    n = mod.cycle_length
+    if mod.kind == "stagger":
+        return tuple(stagger(n, tuple(np.roll(mod.pattern, -o))) for o in range(n))
+    if mod.kind == "dwell_switch":
+        return tuple(dwell_switch(mod.pattern, mod.cycle, mod.dwells, o, mod.level_ratios()) for o in range(n))
+    return tuple(sliding(mod.sliding_depth(), mod.cycle, o) for o in range(n))
+
+
 def from_modulation(mod: Modulation, period: float) -> PRIModel:
     """The model of a source whose priors name its modulation (its deterministic parameters: the
     per-episode draws, a sinusoid's phase and a drift's path, stay unknown)."""
@@ -142,9 +213,11 @@ def from_modulation(mod: Modulation, period: float) -> PRIModel:
     if k == "stagger":
         return stagger(len(mod.pattern), mod.pattern)
     if k == "dwell_switch":
-        return dwell_switch(mod.pattern, mod.cycle)
+        return dwell_switch(mod.pattern, mod.cycle, mod.dwells, unit=mod.level_ratios() if mod.dwells else None)
     if k == "sliding":
-        return sliding(mod.depth, mod.cycle)
+        return sliding(mod.sliding_depth(), mod.cycle)
+    if k == "random_stagger":
+        return random_stagger(mod)
     if k == "sinusoidal":
         return sinusoidal(mod.cycle, mod.depth)
     raise DeintError(f"modulation kind {k!r} has no PRI model; known: {', '.join(KINDS)}")

@@ -4,8 +4,9 @@ A blind policy reports, per label track, a `PRIModel`: the kind (constant, stagg
 sinusoidal, dwell_switch, drifting) and its parameters, in the conventions of
 `deint_env.scenario.Modulation` (period = the mean PRI T; stagger levels = the sub-PRIs in emission
 order, T * pattern / mean(pattern); dwell_switch: the dwell PRIs in that convention as levels and the
-pulses per dwell as cycle; sliding and sinusoidal: depth (relative peak-to-peak sweep / relative
-amplitude) and cycle (pulses); drifting: the period alone).
+pulses per dwell as cycle (their mean for dwells of their own lengths); random_stagger: its level PRIs;
+sliding and sinusoidal: depth (relative peak-to-peak sweep over T / relative amplitude) and cycle
+(pulses); drifting: the period alone).
 `modulation_scores` compares them with the episode's truth: the share of sources whose model kind is
 right, and the relative errors of the parameters where it is.
 """
@@ -20,7 +21,7 @@ import numpy as np
 
 from deint_env.scenario import ScenarioSpec
 
-KINDS = ("constant", "stagger", "sliding", "sinusoidal", "dwell_switch", "drifting")
+KINDS = ("constant", "stagger", "sliding", "sinusoidal", "dwell_switch", "drifting", "random_stagger")
 
 
 @dataclass(frozen=True)
@@ -44,11 +45,14 @@ def true_models(spec: ScenarioSpec, period: np.ndarray) -> list[PRIModel]:
     out = []
     for src, t in zip(spec.sources, np.asarray(period, dtype=np.float64).tolist()):
         m = src.modulation
-        if m.kind in ("stagger", "dwell_switch"):
+        if m.kind in ("stagger", "dwell_switch", "random_stagger"):
+            dwell = (float(np.mean(m.dwells)) if m.dwells else float(m.cycle)) if m.kind == "dwell_switch" else 0.0
             pat = np.asarray(m.pattern)
-            out.append(PRIModel(m.kind, t, tuple((t * pat / pat.mean()).tolist()), 0.0,
-                                float(m.cycle) if m.kind == "dwell_switch" else 0.0))
-        elif m.kind in ("sliding", "sinusoidal"):
+            levels = t * m.level_ratios() if m.kind == "random_stagger" or m.dwells else t * pat / pat.mean()
+            out.append(PRIModel(m.kind, t, tuple(levels.tolist()), 0.0, dwell))
+        elif m.kind == "sliding":
+            out.append(PRIModel(m.kind, t, (), float(m.sliding_depth()), float(m.cycle)))
+        elif m.kind == "sinusoidal":
             out.append(PRIModel(m.kind, t, (), float(m.depth), float(m.cycle)))
         else:
             out.append(PRIModel(m.kind, t))
@@ -102,7 +106,7 @@ def modulation_scores(found: Sequence[PRIModel | None], truth: Sequence[PRIModel
         if not ok:
             continue
         period.append(abs(model.period - true.period) / true.period)
-        if true.kind in ("stagger", "dwell_switch"):
+        if true.kind in ("stagger", "dwell_switch", "random_stagger"):
             levels.append(_cyclic_level_error(model.levels, true.levels))
         if true.kind in ("sliding", "sinusoidal"):
             depth.append(abs(model.depth - true.depth) / true.depth)

@@ -109,19 +109,31 @@ def _floats(value: Any, what: str) -> tuple[float, ...]:
     return tuple(out)
 
 
-MODULATIONS = ("constant", "stagger", "sliding", "sinusoidal", "drifting", "dwell_switch")
+MODULATIONS = ("constant", "stagger", "sliding", "sinusoidal", "drifting", "dwell_switch", "random_stagger")
+SLIDING_REFERENCES = ("mean", "start")  # Modulation.relative_to
+CYCLIC = ("stagger", "dwell_switch", "sliding")  # kinds whose cycle position `random_start` may draw
 
 
 @dataclass(frozen=True)
 class Modulation:
     """How a source's pulse repetition interval (PRI) moves from pulse to pulse.
 
-    With n the source's own pulse index and T its period (its mean PRI):
+    With n the source's own pulse index (PRI_n: the interval after pulse n), T its period (its mean
+    PRI) and o the cycle position of its first pulse (0, or drawn per episode when `random_start`):
     - ``constant``: PRI_n = T.
-    - ``stagger``: PRI_n = T * pattern[n mod m] / mean(pattern)  (m-position stagger).
-    - ``dwell_switch``: PRI_n = T * pattern[(n // cycle) mod m] / mean(pattern)  (each PRI held `cycle` pulses).
-    - ``sliding``: PRI_n = T * (1 + depth * ((n mod cycle) / (cycle - 1) - 1/2))  (saw-tooth sweep).
-    - ``sinusoidal``: PRI_n = T * (1 + depth * sin(2 pi n / cycle + psi)), psi drawn per episode (wobulation).
+    - ``stagger``: PRI_n = T * pattern[(n + o) mod m] / mean(pattern)  (m-position stagger).
+    - ``dwell_switch``: PRI_n = T * pattern[j(n + o)] / w, j(p) the dwell holding position p mod sum(d)
+      of a cycle of dwells d = `dwells` (pattern[j] held d_j pulses; empty: `cycle` pulses each) and
+      w = sum_j d_j pattern[j] / sum_j d_j the pulse-weighted mean level.
+    - ``sliding``: a saw-tooth sweep with ramp position r_n = ((n + o) mod cycle) / (cycle - 1):
+      relative_to="mean": PRI_n = T * (1 + depth * (r_n - 1/2)), 0 < depth < 1 (depth relative to T);
+      relative_to="start": PRI_n = T * (1 + depth * r_n) / (1 + depth / 2), any depth > 0 (depth
+      relative to the ramp's first PRI, which is T / (1 + depth / 2): a ramp may span more than it).
+    - ``sinusoidal``: PRI_n = T * (1 + depth * sin(2 pi n / cycle + psi)), psi drawn per episode
+      (wobulation); the cycle (pulses) may be any number >= 2, not only a whole one.
+    - ``random_stagger``: PRI_n = T * pattern[s_n] / sum_k pi_k pattern[k], the level s_n drawn at
+      every pulse: i.i.d. with probabilities `probs` (empty: uniform), or a Markov chain with
+      P(s_n = j | s_{n-1} = i) = transition[i][j] started from its stationary distribution pi.
     - ``drifting``: PRI_0 = T, PRI_{n+1} = alpha * PRI_n + drift_std * v_n, v_n ~ N(0, 1): the stochastic
       source of MK94 section II-C-2 (alpha in place of I in the (1,1) block of F, with G v_k != 0).
     """
@@ -129,9 +141,14 @@ class Modulation:
     kind: str = "constant"
     pattern: tuple[float, ...] = ()
     depth: float = 0.0
-    cycle: int = 0
+    cycle: int | float = 0
     alpha: float = 1.0
     drift_std: float = 0.0
+    probs: tuple[float, ...] = ()
+    transition: tuple[tuple[float, ...], ...] = ()
+    dwells: tuple[int, ...] = ()
+    relative_to: str = "mean"
+    random_start: bool = False
 
     def __post_init__(self) -> None:
         check(self.kind in MODULATIONS, "modulation.kind", self.kind, f"one of {', '.join(MODULATIONS)}")
@@ -139,18 +156,39 @@ class Modulation:
         for name in ("depth", "alpha", "drift_std"):
             object.__setattr__(self, name, _number(getattr(self, name), f"modulation.{name}"))
         k = self.kind
-        if k in ("stagger", "dwell_switch"):
+        levelled = ("stagger", "dwell_switch", "random_stagger")
+        if k in levelled:
             check(len(self.pattern) >= 2 and min(self.pattern) > 0, "modulation.pattern", self.pattern,
                   f"{k} needs at least two positive PRI multipliers")
         else:
-            check(not self.pattern, "modulation.pattern", self.pattern, f"only stagger/dwell_switch take a pattern")
-        needs_cycle = k in ("sliding", "sinusoidal", "dwell_switch")
-        check(isinstance(self.cycle, int) and not isinstance(self.cycle, bool)
-              and (self.cycle >= 2 if needs_cycle else self.cycle == 0),
-              "modulation.cycle", self.cycle, f"{k} needs " + ("an integer >= 2 (pulses)" if needs_cycle else "0"))
+            check(not self.pattern, "modulation.pattern", self.pattern, f"only {'/'.join(levelled)} take a pattern")
+        self._check_levels()
+        needs_cycle = k in ("sliding", "sinusoidal") or (k == "dwell_switch" and not self.dwells)
+        if k == "sinusoidal":  # a wobulation's cycle need not be whole; a whole float is stored as an int
+            check(_is_number(self.cycle) and math.isfinite(self.cycle) and self.cycle >= 2, "modulation.cycle",
+                  self.cycle, "sinusoidal needs a number >= 2 (pulses per cycle, not necessarily whole)")
+            if float(self.cycle).is_integer():
+                object.__setattr__(self, "cycle", int(self.cycle))
+        else:
+            check(isinstance(self.cycle, int) and not isinstance(self.cycle, bool)
+                  and (self.cycle >= 2 if needs_cycle else self.cycle == 0), "modulation.cycle", self.cycle,
+                  f"{k} needs " + ("an integer >= 2 (pulses)" if needs_cycle else
+                                   "0 (its dwells give the lengths)" if k == "dwell_switch" else "0"))
+        check(self.relative_to in SLIDING_REFERENCES and (k == "sliding" or self.relative_to == "mean"),
+              "modulation.relative_to", self.relative_to,
+              f"one of {', '.join(SLIDING_REFERENCES)} (sliding only; other kinds leave it 'mean')")
         needs_depth = k in ("sliding", "sinusoidal")
-        check(math.isfinite(self.depth) and (0 < self.depth < 1 if needs_depth else self.depth == 0),
-              "modulation.depth", self.depth, f"{k} needs " + ("0 < depth < 1" if needs_depth else "0"))
+        if k == "sliding" and self.relative_to == "start":
+            check(0 < self.depth <= 100, "modulation.depth", self.depth,
+                  "sliding relative_to='start' needs 0 < depth <= 100 (the ramp's span over its first PRI)")
+        else:
+            check(0 < self.depth < 1 if needs_depth else self.depth == 0, "modulation.depth", self.depth,
+                  f"{k} needs " + ("0 < depth < 1" + (" (a deeper ramp: relative_to='start', depth relative to "
+                                                     "the ramp's first PRI)" if k == "sliding" else "")
+                                   if needs_depth else "0"))
+        check(isinstance(self.random_start, bool) and (k in CYCLIC or not self.random_start),
+              "modulation.random_start", self.random_start,
+              f"true or false; true only for {', '.join(CYCLIC)} (sinusoidal always draws its phase)")
         if k == "drifting":
             check(0.9 <= self.alpha <= 1.1, "modulation.alpha", self.alpha, "0.9 <= alpha <= 1.1 (see also "
                   "ScenarioSpec: the period may change at most 100-fold over the episode)")
@@ -160,10 +198,84 @@ class Modulation:
             check(self.alpha == 1.0 and self.drift_std == 0.0, "modulation.alpha", (self.alpha, self.drift_std),
                   "alpha and drift_std are for kind='drifting' only")
 
+    def _check_levels(self) -> None:
+        """random_stagger's `probs` / `transition` and dwell_switch's `dwells`."""
+        k, m = self.kind, len(self.pattern)
+        object.__setattr__(self, "probs", _floats(self.probs, "modulation.probs"))
+        check(isinstance(self.transition, (list, tuple)), "modulation.transition", self.transition,
+              "a list of rows (lists of numbers)")
+        object.__setattr__(self, "transition", tuple(_floats(row, "modulation.transition") for row in self.transition))
+        check(isinstance(self.dwells, (list, tuple)) and all(
+            isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in self.dwells), "modulation.dwells",
+            self.dwells, "a list of whole numbers of pulses >= 1")
+        object.__setattr__(self, "dwells", tuple(self.dwells))
+        if k != "random_stagger":
+            for name in ("probs", "transition"):
+                check(not getattr(self, name), f"modulation.{name}", getattr(self, name),
+                      f"{name} is for kind='random_stagger' only")
+        if k != "dwell_switch":
+            check(not self.dwells, "modulation.dwells", self.dwells, "dwells are for kind='dwell_switch' only")
+        elif self.dwells:
+            check(len(self.dwells) == m and self.cycle == 0, "modulation.dwells", self.dwells,
+                  f"one dwell per pattern level ({m}), with cycle left 0")
+        if self.probs:
+            check(len(self.probs) == m and min(self.probs) > 0 and abs(sum(self.probs) - 1) < 1e-6,
+                  "modulation.probs", self.probs, f"{m} positive level probabilities summing to 1")
+            check(not self.transition, "modulation.transition", self.transition,
+                  "give probs (i.i.d. levels) or transition (a Markov chain), not both")
+        if self.transition:
+            p = np.array(self.transition) if all(len(r) == m for r in self.transition) else None
+            check(p is not None and p.shape == (m, m) and (p >= 0).all() and np.allclose(p.sum(axis=1), 1, atol=1e-6),
+                  "modulation.transition", self.transition,
+                  f"a row-stochastic {m}x{m} matrix (rows: from level i, entries >= 0 summing to 1)")
+            reach = np.linalg.matrix_power(np.eye(m) + (p > 0), m - 1)
+            check(bool((reach > 0).all()), "modulation.transition", self.transition,
+                  "an irreducible chain (every level reachable from every other), so its stationary "
+                  "distribution, from which it starts, is unique")
+
+    def level_probs(self) -> np.ndarray:
+        """random_stagger: pi, the levels' long-run probabilities (probs, uniform, or the chain's
+        stationary distribution: the left eigenvector of transition for eigenvalue 1)."""
+        m = len(self.pattern)
+        if self.transition:
+            p = np.array(self.transition)
+            a = np.vstack([p.T - np.eye(m), np.ones(m)])
+            pi = np.linalg.lstsq(a, np.r_[np.zeros(m), 1.0], rcond=None)[0]
+            return np.maximum(pi, 0.0) / np.maximum(pi, 0.0).sum()
+        return np.array(self.probs) if self.probs else np.full(m, 1.0 / m)
+
+    def level_ratios(self) -> np.ndarray:
+        """The PRI of each pattern level over T: random_stagger's pattern / sum(pi pattern), dwell_switch's
+        pattern / (its pulse-weighted mean), stagger's pattern / mean(pattern)."""
+        pat = np.asarray(self.pattern, dtype=np.float64)
+        if self.kind == "random_stagger":
+            return pat / float(self.level_probs() @ pat)
+        if self.kind == "dwell_switch" and self.dwells:
+            d = np.asarray(self.dwells, dtype=np.float64)
+            return pat / float(d @ pat / d.sum())
+        return pat / np.mean(pat)
+
+    @property
+    def cycle_length(self) -> int:
+        """Pulses in one cycle of a cyclic kind (stagger: m, dwell_switch: the dwells' sum, sliding: cycle)."""
+        if self.kind == "stagger":
+            return len(self.pattern)
+        if self.kind == "dwell_switch":
+            return sum(self.dwells) if self.dwells else self.cycle * len(self.pattern)
+        return int(self.cycle)
+
+    def sliding_depth(self) -> float:
+        """The sliding ramp's peak-to-peak sweep over T (the `relative_to="mean"` depth of the same ramp)."""
+        return self.depth / (1 + self.depth / 2) if self.relative_to == "start" else self.depth
+
     def min_ratio(self) -> float:
         """A lower bound of PRI_n / T over the deterministic part of the modulation."""
-        if self.kind in ("stagger", "dwell_switch"):
-            return min(self.pattern) / (sum(self.pattern) / len(self.pattern))
+        if self.kind in ("stagger", "dwell_switch", "random_stagger"):
+            if self.kind == "stagger" or not (self.dwells or self.kind == "random_stagger"):
+                return min(self.pattern) / (sum(self.pattern) / len(self.pattern))
+            return float(self.level_ratios().min())
+        if self.kind == "sliding" and self.relative_to == "start":
+            return 1.0 / (1.0 + self.depth / 2)  # the ramp's first PRI
         if self.kind in ("sliding", "sinusoidal"):
             return 1.0 - self.depth
         return 1.0  # drifting: a guess; the generator doubles its count when it falls short

@@ -51,6 +51,22 @@ EXTRA = (
                                                                            cycle=20), active=((0.0, 0.4),)),
                           SourceSpec(period=_SPREAD, active=((0.3, 0.6), (0.8, 1.0)))),
                  priors=PriorSpec(phase_error=None)),
+    # the models of agile-v2 and the ones it leaves out: random levels (i.i.d., Markov), random cycle
+    # positions (stagger, dwells of their own lengths, a deep ramp), a wobulation of a fractional cycle
+    ScenarioSpec(name="x-agile-models", n_pulses=800, toa_jitter_std=0.1, missing_prob=0.1, spurious_rate=0.1,
+                 sources=(SourceSpec(period=_SPREAD, modulation=Modulation("random_stagger", pattern=(1.0, 1.5),
+                                                                           probs=(0.3, 0.7))),
+                          SourceSpec(period=_SPREAD, modulation=Modulation(
+                              "random_stagger", pattern=(1.0, 1.3, 1.7),
+                              transition=((0.0, 1.0, 0.0), (0.5, 0.0, 0.5), (0.2, 0.3, 0.5)))),
+                          SourceSpec(period=_SPREAD, modulation=Modulation("stagger", pattern=(1.0, 1.3, 1.7),
+                                                                           random_start=True)),
+                          SourceSpec(period=_SPREAD, modulation=Modulation("dwell_switch", pattern=(1.0, 1.4, 0.8),
+                                                                           dwells=(5, 9, 3), random_start=True)),
+                          SourceSpec(period=_SPREAD, modulation=Modulation("sliding", depth=1.5, cycle=12,
+                                                                           relative_to="start", random_start=True)),
+                          SourceSpec(period=_SPREAD, modulation=Modulation("sinusoidal", depth=0.2, cycle=17.3))),
+                 priors=PriorSpec(modulation=True)),
     # one source on for a tenth of the nominal duration: the first horizon falls short and is doubled
     ScenarioSpec(name="x-horizon-retry", n_pulses=300, toa_jitter_std=0.2, spurious_rate=0.2,
                  coincidence_resolution=0.5,

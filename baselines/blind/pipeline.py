@@ -26,7 +26,7 @@ import numpy as np
 
 from baselines.blind.histograms import Candidate
 from baselines.blind.pri_models import line_fit, single_train_model, stagger_model
-from baselines.blind.search import Chain, sequence_search
+from baselines.blind.search import Chain, pool, sequence_search
 from deint_env.oracle import genie_labels
 from deint_env.modulation import PRIModel
 
@@ -43,6 +43,11 @@ class SearchParams:
     min_fill: float = 0.8
     max_miss: int = 3
     max_trains: int = 32
+    # candidate PRIs tried per train extracted: bounds a window's time where a smeared histogram (a
+    # sweeping train, too fine a bin for the noise) puts thousands of chance peaks over the threshold
+    # (28,000 in one pass of a deep saw-tooth with the noise unknown: 12 s for 1000 pulses).  Simulated
+    # agile scenes made blind need up to ~2,000 before a train is found; no label of them changes.
+    max_tries: int = 2048
     missing_prob: float = 0.0  # for the re-association (the priors' channel statistics)
     spurious_rate: float = 0.0  # spurious pulses per received pulse, for the re-association
 
@@ -64,13 +69,16 @@ def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Cha
     chains: list[Chain] = []
     while free.sum() >= p.min_pulses and len(chains) < p.max_trains:
         found = None
+        shared = pool(t, free)
+        tries = 0
         for level in detect(t[free], p.sigma, p.pri_min, p.pri_max):
             for cand in sorted(level, key=lambda c: c.pri):
                 found = sequence_search(t, free, cand.pri, cand.unc, p.sigma, max_miss=p.max_miss,
-                                        min_pulses=p.min_pulses, min_fill=p.min_fill)
-                if found is not None:
+                                        min_pulses=p.min_pulses, min_fill=p.min_fill, shared=shared)
+                tries += 1
+                if found is not None or tries >= p.max_tries:
                     break
-            if found is not None:
+            if found is not None or tries >= p.max_tries:
                 break
         if found is None:
             break

@@ -9,8 +9,8 @@ is fresh, so at most one link is lost per re-used label).  Trains beyond the lab
 spurious (the smallest trains first).
 
 Without a known TOA noise (priors.jitter_std = 0, e.g. `deint label` with no priors or a TDC file)
-the noise is measured first, from trial deinterleavings with a growing sigma
-(`HistogramPolicy._search_sigma`).
+the noise is measured first, from the widths of the difference peaks (`noise.estimate_noise`), and
+checked against the residuals of the trains found (`HistogramPolicy._label_unknown_noise`).
 """
 
 from __future__ import annotations
@@ -22,12 +22,19 @@ import numpy as np
 
 from baselines.blind.descriptors import standardised
 from baselines.blind.detectors import CDIF, SDIF, PRITransform
+from baselines.blind.noise import estimate_noise
 from baselines.blind.pipeline import Deinterleaving, Detector, SearchParams, deinterleave
 from baselines.blind.pri_models import line_fit
 from baselines.windowed import MAX_WINDOW, WindowedPolicy
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.modulation import PRIModel
+
+
+# windows cost up to ~0.4 s per 1000 pulses (pri-transform; a smeared difference histogram, a second
+# pass with the measured noise), so a record of a million pulses could take minutes: refused, with the
+# reason, instead
+MAX_PULSES = 100_000
 
 
 def _check_window(window: object) -> int:
@@ -69,12 +76,16 @@ class BlindWindowPolicy(WindowedPolicy):
         self.priors = priors
         self.n_labels = priors.n_labels
         n = info.get("n_pulses")
+        if n is not None and n > MAX_PULSES:
+            raise DeintError(f"the blind deinterleavers label at most {MAX_PULSES} pulses in one run (up to about "
+                             f"0.4 ms a pulse); this record has {n}: split it into files of fewer pulses")
         if self._features is not None and n is not None:
             bad = [k for k, v in self._features.items() if v.shape != (n,)]
             if bad:
                 raise DeintError(f"attached descriptor {bad[0]} has {self._features[bad[0]].size} values for an "
                                  f"episode of {n} pulses")
         self._amp = bool(info.get("has_amplitude", False))
+        self._noise_estimate: float | None = None  # the TOA noise measured when the priors give none
         self._start()
         self._last_used = np.full(self.n_labels, -1, dtype=np.int64)  # window number of each label's last use
         self._tracks: list[tuple[PRIModel, float] | None] = [None] * self.n_labels  # (model, last pulse)
@@ -136,7 +147,9 @@ class BlindWindowPolicy(WindowedPolicy):
             if track is None or j in taken or self._last_used[j] != self._windows - 2:
                 continue
             old, last = track
-            if old.kind != model.kind or abs(old.period - model.period) > 0.01 * old.period + 4 * sigma:
+            # (a one-pulse cluster has no period: it continues nothing)
+            if not math.isfinite(old.period) or old.kind != model.kind \
+                    or not abs(old.period - model.period) <= 0.01 * old.period + 4 * sigma:
                 continue
             frame = old.period * max(len(old.levels), 1)
             steps = (first - last) / frame
@@ -207,30 +220,31 @@ class HistogramPolicy(BlindWindowPolicy):
 
     def _label_toas(self, toa: np.ndarray) -> Deinterleaving:
         sigma = self.priors.jitter_std
-        if sigma <= 0:
-            sigma = self._search_sigma(toa)
-        self._sigma_used = sigma
-        return deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+        if sigma > 0:
+            self._sigma_used = sigma
+            return deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+        return self._label_unknown_noise(toa)
 
-    def _search_sigma(self, toa: np.ndarray) -> float:
-        """The TOA noise, unknown: trial deinterleavings with sigma doubling from 1 % of the median
-        pulse spacing.  Too small a sigma fragments the trains (gates miss jittered pulses), too large
-        a one lets chance pulses in until no train passes the chance test; the smallest trial whose
-        trains hold 95 % of the most pulses any trial explained is taken, and sigma is the spread of
-        its trains' residuals."""
+    def _label_unknown_noise(self, toa: np.ndarray) -> Deinterleaving:
+        """The TOA noise unknown (no priors file, a TDC file): measured from the difference peaks
+        (`noise.estimate_noise`: one interval's deviation, white noise and PRI jitter together), the
+        window deinterleaved with it, and once more with the spread of the residuals of the constant
+        trains found when that is off by more than half (a peak widened by a modulated or chance
+        train, or a record with no clean peak at all: then 1 % of the median pulse spacing first)."""
         gaps = np.diff(toa)
-        trial = 0.01 * (float(np.median(gaps)) if gaps.size else 1.0)
-        runs = []  # (trial, pulses explained, measured sigma)
-        for _ in range(10):
-            first = deinterleave(toa, self.detector, self._params(toa, trial), align=False)
-            covered = sum(tr.pulses.size for tr in first.trains)
-            runs.append((trial, covered, self._measured_sigma(toa, first)))
-            if covered == 0 and any(r[1] for r in runs):
-                break
-            trial *= 2.0
-        best = max(r[1] for r in runs)
-        chosen = next(r for r in runs if r[1] >= 0.95 * best)
-        return chosen[2] or chosen[0]
+        # a thousandth of the spacing, and never below the TOAs' own precision (coincident pulses)
+        floor = max(1e-3 * (float(np.median(gaps)) if gaps.size else 1.0), 1e-12 * (1.0 + float(np.abs(toa).max())))
+        if self._noise_estimate is None:  # the receiver's noise: measured on the first window, kept after
+            self._noise_estimate = estimate_noise(toa).walk
+        est = self._noise_estimate
+        sigma = max(est, floor) if est > 0 else 10 * floor
+        result = deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+        measured = self._measured_sigma(toa, result)
+        if measured is not None and not 0.5 * sigma <= measured <= 2.0 * sigma:
+            sigma = max(measured, floor)
+            result = deinterleave(toa, self.detector, self._params(toa, sigma), align=self.align)
+        self._sigma_used = sigma
+        return result
 
     @staticmethod
     def _measured_sigma(toa: np.ndarray, first: Deinterleaving) -> float | None:

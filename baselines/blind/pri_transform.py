@@ -98,8 +98,8 @@ def pri_transform(t: np.ndarray, pri_min: float, pri_max: float, width: float, e
 def pri_transform_candidates(t: np.ndarray, pri_min: float, pri_max: float, width: float, *, eps: float = 0.01,
                              sigma: float = 0.0, alpha: float = 0.3, beta: float = 0.15,
                              gamma: float = 4.0) -> list[Candidate]:
-    """Peaks of |D| over the paper's three thresholds, smallest PRI first."""
-    if t.size < 3:
+    """Peaks of |D| over the paper's three thresholds, smallest PRI first (none from coincident pulses)."""
+    if t.size < 3 or not t[-1] > t[0]:
         return []
     centres, mag, count, half = pri_transform(t, pri_min, pri_max, width, eps, sigma)
     t_obs = float(t[-1] - t[0])

@@ -111,34 +111,63 @@ def accept(chain: Chain, min_pulses: int, min_fill: float, chance: float = 0.0) 
     """A train must have `min_pulses` pulses and fill `min_fill` of the arrivals its span predicts,
     and clearly more than a walk at a wrong PRI would by chance (`chance`: the probability that a
     gate holds some free pulse anyway), by three binomial standard deviations."""
-    n = chain.index.size
-    slots = int(chain.k[-1]) - int(chain.k[0]) + 1
+    return _accept(chain.index.size, int(chain.k[-1]) - int(chain.k[0]) + 1, min_pulses, min_fill, chance)
+
+
+@numba.njit(cache=True)
+def _accept(n, slots, min_pulses, min_fill, chance):  # pragma: no cover - numba
     need = max(min_fill, chance + 3.0 * np.sqrt(chance * (1.0 - chance) / slots))
     return n >= min_pulses and n >= need * slots
 
 
+@numba.njit(cache=True)
+def _best_walk(t, free, seeds, pri, pri_unc, sigma, max_miss, memory, slack, curve, min_pulses, min_fill,
+               chance):  # pragma: no cover - numba
+    """The longest acceptable walk over the seeds (the first of equal length); empty if none."""
+    best_i = np.empty(0, np.int64)
+    best_k = np.empty(0, np.int64)
+    for s in seeds:
+        idx, ks = _walk(t, free, s, pri, pri_unc, sigma, max_miss, memory, slack, curve)
+        if _accept(idx.size, ks[-1] - ks[0] + 1, min_pulses, min_fill, chance) and idx.size > best_i.size:
+            best_i, best_k = idx, ks
+    return best_i, best_k
+
+
+class Pool(NamedTuple):
+    """What the searches over one set of free pulses share: the free pulses, the evenly spread seeds
+    for trains that start late, and the free pulses' density."""
+
+    cand: np.ndarray
+    rest: np.ndarray
+    density: float
+
+
+def pool(t: np.ndarray, free: np.ndarray, n_seeds: int = 16) -> Pool:
+    cand = np.flatnonzero(free)
+    rest = cand[np.linspace(0, cand.size - 1, n_seeds // 2).astype(np.int64)] if cand.size else cand
+    density = cand.size / max(float(t[cand[-1]] - t[cand[0]]), 1e-300) if cand.size else 0.0
+    return Pool(cand, rest, density)
+
+
 def sequence_search(t: np.ndarray, free: np.ndarray, pri: float, pri_unc: float, sigma: float, *,
                     n_seeds: int = 16, max_miss: int = 3, memory: int = 16, min_pulses: int = 6,
-                    min_fill: float = 0.8, slack: float = 0.0, curve: bool = False) -> Chain | None:
-    """(memory: how many recent pulses the predicting line is fitted to; a short memory and some
-    `slack` (a PRI change per pulse the gate allows) follow a modulated PRI; `curve`: `curve`: predict
-    from a parabola through them (from 6 pulses on) instead of a line.)"""
+                    min_fill: float = 0.8, slack: float = 0.0, curve: bool = False,
+                    shared: Pool | None = None) -> Chain | None:
     """The longest acceptable train of PRI ~ `pri` (+- `pri_unc`) among the free pulses, or None.
 
     Seeds are the free pulses in the first 1.5 PRI after the first free pulse (a train present from
-    the start has one there) and, for trains that start later, free pulses spread over the rest."""
-    cand = np.flatnonzero(free)
+    the start has one there) and, for trains that start later, free pulses spread over the rest.
+    (memory: how many recent pulses the predicting line is fitted to; a short memory and some `slack`
+    (a PRI change per pulse the gate allows) follow a modulated PRI; `curve`: predict from a parabola
+    through them (from 6 pulses on) instead of a line; `shared`: `pool(t, free, n_seeds)` when many
+    searches run on one set of free pulses.)"""
+    p = shared if shared is not None else pool(t, free, n_seeds)
+    cand = p.cand
     if cand.size < min_pulses:
         return None
     head = cand[t[cand] <= t[cand[0]] + 1.5 * pri + 3 * sigma][:n_seeds]
-    rest = cand[np.linspace(0, cand.size - 1, n_seeds // 2).astype(np.int64)]
-    density = cand.size / max(float(t[cand[-1]] - t[cand[0]]), 1e-300)
-    chance = float(-np.expm1(-density * 2 * (3.0 * sigma + slack)))  # a free pulse in the gate anyway
-    best: Chain | None = None
-    for seed in np.unique(np.concatenate([head, rest])):
-        idx, ks = _walk(t, free, int(seed), float(pri), float(pri_unc), float(sigma), max_miss, memory,
-                        float(slack), bool(curve))
-        chain = Chain(idx, ks, int(ks[-1]) + 1)
-        if accept(chain, min_pulses, min_fill, chance) and (best is None or idx.size > best.index.size):
-            best = chain
-    return best
+    chance = float(-np.expm1(-p.density * 2 * (3.0 * sigma + slack)))  # a free pulse in the gate anyway
+    idx, ks = _best_walk(t, free, np.unique(np.concatenate([head, p.rest])), float(pri), float(pri_unc),
+                         float(sigma), max_miss, memory, float(slack), bool(curve), min_pulses, float(min_fill),
+                         chance)
+    return Chain(idx, ks, int(ks[-1]) + 1) if idx.size else None

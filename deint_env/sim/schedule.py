@@ -8,14 +8,18 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.signal import lfilter
 
 from deint_env.scenario import Modulation, Range, ScenarioSpec, SourceSpec
 from deint_env.sim.rows import compact
 from deint_env.sim.streams import AMPLITUDE, CUMULATIVE, MODULATION, fill, stream
 
 MIN_INTERVAL = 0.05  # intervals are clipped at this fraction of the PRI so a source never runs backwards
-RANDOM_MODULATIONS = ("sinusoidal", "drifting")  # drawn per episode
+RANDOM_MODULATIONS = ("sinusoidal", "drifting", "random_stagger")  # drawn per episode
+
+
+def _is_random(mod: Modulation) -> bool:
+    """Whether a modulation draws part of its PRIs per episode (its kind, or a drawn cycle position)."""
+    return mod.kind in RANDOM_MODULATIONS or mod.random_start
 
 
 class SourceDraw(NamedTuple):
@@ -123,7 +127,7 @@ def _times(mod: Modulation, period: np.ndarray, phase: np.ndarray, m: np.ndarray
     t[:, 0] = phase
     np.cumsum(intervals[:, :-1], axis=1, out=t[:, 1:])
     t[:, 1:] += phase[:, None]
-    if cum_std > 0 or mod.kind in RANDOM_MODULATIONS:
+    if cum_std > 0 or _is_random(mod):
         t[np.arange(width) >= m[:, None]] = np.inf
     return t, pri
 
@@ -132,31 +136,60 @@ def _pri(mod: Modulation, period: np.ndarray, m: np.ndarray, width: int, seeds: 
     """PRI_n for n = 0..width-1 (the interval after pulse n) per row, per `Modulation`'s definitions;
     random modulations are drawn per episode and defined up to m[j] only (zeros past it)."""
     kind = mod.kind
-    if kind in RANDOM_MODULATIONS:
+    if _is_random(mod):
         out = np.zeros((period.size, width))
         for row, t, c, seed in zip(out, period.tolist(), m.tolist(), seeds):
             row[:c] = _random_pri(mod, t, c, seed, i)
         return out
     if kind == "constant":
         return np.broadcast_to(period[:, None], (period.size, width))
-    n = np.arange(width)
-    if kind in ("stagger", "dwell_switch"):
+    return period[:, None] * _cyclic_ratio(mod, np.arange(width))
+
+
+def _cyclic_ratio(mod: Modulation, n: np.ndarray) -> np.ndarray:
+    """PRI_n / T of a cyclic kind (stagger, dwell_switch, sliding) at cycle positions n."""
+    kind = mod.kind
+    if kind == "stagger" or (kind == "dwell_switch" and not mod.dwells):
         pattern = np.asarray(mod.pattern) / np.mean(mod.pattern)
-        ratio = pattern[n % pattern.size if kind == "stagger" else (n // mod.cycle) % pattern.size]
-    else:  # sliding
-        ratio = 1.0 + mod.depth * ((n % mod.cycle) / (mod.cycle - 1) - 0.5)
-    return period[:, None] * ratio
+        return pattern[n % pattern.size if kind == "stagger" else (n // mod.cycle) % pattern.size]
+    if kind == "dwell_switch":  # dwells of their own lengths: the dwell holding each position of the cycle
+        ends = np.cumsum(mod.dwells)
+        return mod.level_ratios()[np.searchsorted(ends, n % ends[-1], side="right")]
+    if mod.relative_to == "start":
+        return (1.0 + mod.depth * ((n % mod.cycle) / (mod.cycle - 1))) / (1.0 + mod.depth / 2)
+    return 1.0 + mod.depth * ((n % mod.cycle) / (mod.cycle - 1) - 0.5)
 
 
 def _random_pri(mod: Modulation, period: float, m: int, seed: int, i: int) -> np.ndarray:
     """One episode's m PRIs of a modulation with a random part (its own MODULATION stream)."""
     n = np.arange(m)
+    rng = stream(seed, MODULATION, i)
     if mod.kind == "sinusoidal":
-        psi = 2 * np.pi * stream(seed, MODULATION, i).random()
+        psi = 2 * np.pi * rng.random()
         return period * (1.0 + mod.depth * np.sin(2 * np.pi * n / mod.cycle + psi))
+    if mod.random_start:  # the cycle position of the first pulse, uniform over the cycle
+        return period * _cyclic_ratio(mod, n + int(rng.integers(mod.cycle_length)))
+    if mod.kind == "random_stagger":
+        return period * mod.level_ratios()[_levels(mod, rng.random(m))]
     # drifting (MK94 II-C-2): PRI_{n+1} = alpha PRI_n + drift_std v_n, a first-order recursion.
     drive = np.empty(m)
     drive[0] = period
-    drive[1:] = mod.drift_std * stream(seed, MODULATION, i).standard_normal(m - 1)
+    drive[1:] = mod.drift_std * rng.standard_normal(m - 1)
+    from scipy.signal import lfilter  # here: scipy.signal is slow to import and only drifting PRIs use it
     pri = lfilter([1.0], [1.0, -mod.alpha], drive)
     return np.maximum(pri, MIN_INTERVAL * period)
+
+
+def _levels(mod: Modulation, u: np.ndarray) -> np.ndarray:
+    """random_stagger's levels s_0..s_{m-1} from uniforms u (inverse CDFs): s_0 ~ pi, then i.i.d. from
+    pi, or from row s_{n-1} of the transition matrix."""
+    k = len(mod.pattern)
+    start = np.minimum(np.searchsorted(np.cumsum(mod.level_probs()), u, side="right"), k - 1)
+    if not mod.transition:
+        return start
+    cdf = np.cumsum(np.array(mod.transition), axis=1)
+    s = np.empty(u.size, dtype=np.int64)
+    s[:1] = start[:1]
+    for j in range(1, u.size):
+        s[j] = min(int(np.searchsorted(cdf[s[j - 1]], u[j], side="right")), k - 1)
+    return s

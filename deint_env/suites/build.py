@@ -262,6 +262,45 @@ def agile_v1() -> Suite:
                  v0.entries)
 
 
+AGILE_V2_MISSING, AGILE_V2_SPURIOUS = 0.1, 0.1  # the channel of agile-v2's scenarios but the last two
+
+
+def agile_v2() -> Suite:
+    """The PRI models real emitters use (issue #22): random-level stagger (i.i.d. and Markov), deep
+    saw-tooth ramps, wobulation of a non-integer cycle and dwells of their own lengths, under missing
+    and spurious pulses, with priors naming each source's modulation (an emitter library's entry)."""
+    steady = random_sources(2, 4.0)
+    agile = Range(T_MIN, 2 * T_MIN, log=True)
+    priors = dataclasses.replace(STD_PRIORS, modulation=True)
+    rs = Modulation("random_stagger", pattern=(1.0, 1.3, 1.7), probs=(0.5, 0.3, 0.2))
+    markov = Modulation("random_stagger", pattern=(0.8, 1.0, 1.25),
+                        transition=((0.1, 0.8, 0.1), (0.1, 0.1, 0.8), (0.8, 0.1, 0.1)))
+    deep = Modulation("sliding", depth=1.2, cycle=32, relative_to="start")
+    wob = Modulation("sinusoidal", depth=0.2, cycle=1 / 0.015)
+    dwells = Modulation("dwell_switch", pattern=(1.0, 1.4, 0.8), dwells=(20, 35, 10))
+    e = []
+
+    def add(name, mods, desc, missing=AGILE_V2_MISSING, spurious=AGILE_V2_SPURIOUS):
+        srcs = tuple(SourceSpec(period=agile, modulation=m) for m in mods) + steady[:3 - len(mods)]
+        e.append(entry(ScenarioSpec(name=name, sources=srcs, n_pulses=1000, toa_jitter_std=0.1, priors=priors,
+                                    missing_prob=missing, spurious_rate=spurious,
+                                    description=f"{desc}; {missing:.0%} missing, {spurious:g} spurious per pulse"),
+                       ["agile", "missing", "spurious"],
+                       {"modulation": "+".join(sorted({m.kind for m in mods})), "n_agile": len(mods),
+                        "missing_prob": missing, "spurious_rate": spurious}))
+
+    add("agile2-random-stagger", (rs,), "one source switching at random among 3 PRI levels (probabilities 0.5/0.3/0.2)")
+    add("agile2-markov-stagger", (markov,), "one source switching among 3 PRI levels by a Markov chain")
+    add("agile2-deep-sliding", (deep,), "one source sliding over a ramp 1.2 times its first PRI, 32 pulses")
+    add("agile2-wobulated-fractional", (wob,), "one source wobulated +-20 % over 66.7 pulses (not a whole number)")
+    add("agile2-dwells", (dwells,), "one source holding 3 PRIs for 20, 35 and 10 pulses in turn")
+    add("agile2-mixed", (rs, deep, wob), "a random-level, a deep sliding and a wobulated source")
+    add("agile2-mixed-heavy", (rs, deep, wob), "agile2-mixed on a worse channel", missing=0.3, spurious=0.2)
+    add("agile2-all-random", (rs, markov, rs), "three random-level sources", missing=0.2, spurious=0.15)
+    return Suite("agile-v2", 2, "Random-level stagger, deep sliding, non-integer wobulation and dwells of their own "
+                 "lengths, with missing and spurious pulses; priors name each modulation.", tuple(e))
+
+
 def scale_v0() -> Suite:
     e = []
     for n_pulses, n in ((10_000, 4), (10_000, 16), (100_000, 8), (100_000, 32), (1_000_000, 8), (1_000_000, 32)):
@@ -286,7 +325,7 @@ def blind_v0() -> Suite:
 
 
 BUILDERS = {"paper-v0": paper_v0, "paper-v1": paper_v1, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
-            "agile-v1": agile_v1, "scale-v0": scale_v0, "blind-v0": blind_v0}
+            "agile-v1": agile_v1, "agile-v2": agile_v2, "scale-v0": scale_v0, "blind-v0": blind_v0}
 
 
 def main(argv: list[str] | None = None) -> None:

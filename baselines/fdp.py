@@ -83,6 +83,7 @@ from numba import njit
 
 from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
 from deint_env.episode import Priors
+from deint_env.errors import NotApplicable
 
 # Node state: per hypothesis, per source, these fields (the block, then pulses assigned so far).
 PERIOD, TAU, P_TT, P_TX, P_XX, COUNT = range(6)
@@ -713,7 +714,8 @@ class FDP:
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if self.tree_gate is None and float(priors.n_labels) ** (self.lookahead + 1) > 4e6:
-            raise ValueError(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
+            # refused before any work, as a scene outside the policy's reach (one line, not a traceback)
+            raise NotApplicable(f"lookahead={self.lookahead} with {priors.n_labels} sources means "
                              f"{priors.n_labels}^{self.lookahead + 1} continuations a pulse; at most 4e6 "
                              f"(tree_gate keeps only the gated ones)")
         self.priors = priors

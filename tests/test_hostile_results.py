@@ -356,3 +356,33 @@ def test_an_agents_deterministic_flag_is_a_boolean(capsys, tmp_path, value):
     code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy", spec,
                          "-o", tmp_path / "l.csv")
     assert code == 2 and "is invalid: true or false" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("reps", ["100000000", "99"])
+def test_bootstrap_replicates_are_bounded(capsys, tmp_path, reps):
+    code, _, err = deint(capsys, "leaderboard", "--suite", "core-v0", "--root", tmp_path, "--reps", reps,
+                         "--policies", "random", "--max-seeds", 1, "--scenarios", "core-n2-spread1.5-jitter0.05")
+    assert code == 2 and err == f"deint: error: --reps={reps} is invalid: an integer in [100, 100000]\n"
+    assert not any(tmp_path.iterdir())
+
+
+def test_the_statistics_refuse_unbounded_replicates():
+    import numpy as np
+
+    from deint_env import stats
+    from deint_env.errors import DeintError
+
+    with pytest.raises(DeintError, match=r"reps=100000000 is invalid: an integer in \[100, 100000\]"):
+        stats.probability_of_improvement({"a": np.ones(3)}, {"a": np.zeros(3)}, reps=10**8)
+
+
+def test_fdp_refuses_a_tree_it_cannot_walk_in_one_line(capsys, tmp_path):
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv")]) == 0
+    capsys.readouterr()
+    n = 5000
+    (tmp_path / "p.json").write_text(json.dumps({"period": [100 + i / 50 for i in range(n)],
+                                                 "phase": [i / 50 for i in range(n)], "jitter_std": 0.1}))
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy", "fdp",
+                         "-o", tmp_path / "l.csv")
+    assert code == 2 and err == ("deint: error: lookahead=3 with 5000 sources means 5000^4 continuations a pulse; at "
+                                 "most 4e6 (tree_gate keeps only the gated ones)\n")

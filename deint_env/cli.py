@@ -70,6 +70,33 @@ def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) 
                                  f"name a different file for each input and output")
 
 
+def _policy_inputs(specs: list[str]) -> dict[str, str]:
+    """The files a policy spec reads, as inputs for `_check_paths`: a parameter naming an existing file
+    (`checkpoint=ck.safetensors`), and the source of a top-level module a parameter names
+    (`model=mymodel:Name`; found without importing it).  `-o ck.safetensors` would replace them."""
+    import importlib.util
+
+    from deint_env.policies import parse_policy_spec
+
+    found: dict[str, str] = {}
+    for spec in specs:
+        try:
+            _, kwargs = parse_policy_spec(spec)
+        except DeintError:
+            continue  # a bad spec is refused, with its own line, where it is built
+        for key, value in kwargs.items():
+            if not isinstance(value, str):
+                continue
+            if os.path.isfile(value):
+                found[f"--policy {key}="] = value
+            module = value.split(":", 1)[0]
+            if ":" in value and module.isidentifier():  # undotted: find_spec imports no parent package
+                origin = getattr(importlib.util.find_spec(module), "origin", None)
+                if origin and os.path.isfile(origin):
+                    found[f"--policy {key}="] = origin
+    return found
+
+
 def _same_file(a: str, b: str) -> bool:
     if os.path.realpath(a) == os.path.realpath(b):
         return True
@@ -267,7 +294,8 @@ def cmd_label(args: argparse.Namespace) -> int:
     from deint_env.policies import check_policy_seed, is_oracle
     from deint_env.runner import play
 
-    _check_paths({"PULSES": args.pulses, "--priors": args.priors}, {"-o": args.output})
+    _check_paths({"PULSES": args.pulses, "--priors": args.priors, **_policy_inputs([args.policy])},
+                 {"-o": args.output})
     check_policy_seed(args.seed, "--seed")
     priors = _cli_priors(args)
     with _compile_notice(args.policy):
@@ -856,6 +884,7 @@ def cmd_leaderboard_export(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
+    _check_paths(_policy_inputs([args.policy]), {"-o": args.output})
     n = export(_scope(args.suite, args), args.policy, args.output, workers=args.workers, progress=not args.no_progress)
     _status(f"deint: labels of {n} test episodes of {args.suite} by {args.policy} -> {args.output}")
     return 0

@@ -386,3 +386,36 @@ def test_fdp_refuses_a_tree_it_cannot_walk_in_one_line(capsys, tmp_path):
                          "-o", tmp_path / "l.csv")
     assert code == 2 and err == ("deint: error: lookahead=3 with 5000 sources means 5000^4 continuations a pulse; at "
                                  "most 4e6 (tree_gate keeps only the gated ones)\n")
+
+
+def test_a_policys_own_checkpoint_is_an_input_not_an_output(capsys, tmp_path):
+    import shutil
+
+    pytest.importorskip("torch")
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv"), "--priors-out",
+                 str(tmp_path / "p.json")]) == 0
+    capsys.readouterr()
+    ck = tmp_path / "ck.safetensors"
+    shutil.copy("agents/checkpoints/dagger-all-lag3.safetensors", ck)
+    before = ck.read_bytes()
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--priors", tmp_path / "p.json", "--policy",
+                         f"agent:checkpoint={ck}", "-o", ck)
+    assert code == 2 and err == (f"deint: error: -o {ck} is the same file as the input --policy checkpoint= {ck}; "
+                                 f"name a different file for each input and output\n")
+    code, _, err = deint(capsys, "leaderboard", "export", "--suite", "core-v0", "--policy", f"agent:checkpoint={ck}",
+                         "-o", ck)
+    assert code == 2 and "is the same file as the input --policy checkpoint=" in err
+    assert ck.read_bytes() == before
+
+
+def test_a_model_module_a_policy_names_is_an_input(capsys, tmp_path, monkeypatch):
+    module = tmp_path / "my_tdc_model.py"
+    module.write_text("class M:\n    pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert main(["simulate", TARGET, "--seed", "1", "-o", str(tmp_path / "p.csv")]) == 0
+    capsys.readouterr()
+    code, _, err = deint(capsys, "label", tmp_path / "p.csv", "--n-sources", 2, "--policy", "tdc:model=my_tdc_model:M",
+                         "-o", module)
+    assert code == 2 and err == (f"deint: error: -o {module} is the same file as the input --policy model= {module}; "
+                                 f"name a different file for each input and output\n")
+    assert module.read_text() == "class M:\n    pass\n"

@@ -425,7 +425,8 @@ def _add_run(sub) -> None:
     target = p.add_mutually_exclusive_group(required=True)
     target.add_argument("--suite", help="a suite name (see `deint suites`)")
     target.add_argument("--scenario", help="one scenario: SUITE/SCENARIO or a unique bare name")
-    p.add_argument("--split", choices=("test", "train"), default="test", help="the seed split (default test)")
+    p.add_argument("--split", choices=("test", "validation", "train"), default="test",
+                   help="the seed split (default test; validation: the last 1000 train seeds, for choices)")
     p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K seeds of each scenario")
     p.add_argument("--workers", type=int, default=1, metavar="N",
                    help="worker processes (default 1); with --executor ray, the CPUs of the Ray instance "

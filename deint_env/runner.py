@@ -48,10 +48,9 @@ from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_read
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.stats import have_rliable
-from deint_env.suites import find_entry, list_suites, load_suite
+from deint_env.suites import SPLITS, find_entry, list_suites, load_suite
 from deint_env.tables import entry_table
 
-SPLITS = ("test", "train")
 EXECUTORS = ("local", "ray")
 
 
@@ -164,7 +163,7 @@ def make_jobs(policies: Iterable[str], target: str, split: str = "test", max_see
         canon.append((canonical_spec(name, kwargs), spec_version(p, policy)))
     jobs = []
     for suite, suite_hash, entry in resolve_target(target):
-        seeds = list(entry.test if split == "test" else entry.train)
+        seeds = list(entry.seeds(split))
         if max_seeds is not None:
             seeds = seeds[:max_seeds]
         spec = entry.spec.to_dict()

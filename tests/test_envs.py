@@ -457,18 +457,24 @@ def test_minari_records_infos(tmp_path, monkeypatch):
 def test_split_refuses_the_other_splits_seeds():
     name = "core-v0/core-n2-spread1.5-jitter0.05"
     train = make(MAIN, scenario=name, split="train")
-    train.reset(seed=99_999)
+    train.reset(seed=98_999)
     with pytest.raises(DeintError, match=r"^seed=1000000 is a test seed of core-v0/core-n2-spread1.5-jitter0.05: "
-                                         r"this env \(split='train'\) plays train seeds \[0, 100000\) only$"):
+                                         r"this env \(split='train'\) plays train seeds \[0, 99000\) only$"):
         train.reset(seed=1_000_000)
-    with pytest.raises(DeintError, match="not a seed of either split"):
+    with pytest.raises(DeintError, match=r"^seed=99000 is a validation seed .* plays train seeds"):
+        train.reset(seed=99_000)
+    with pytest.raises(DeintError, match="not a seed of any split"):
         train.reset(seed=500_000)
+    validation = make(MAIN, scenario=name, split="validation")
+    validation.reset(seed=99_999)
+    with pytest.raises(DeintError, match=r"seed=1000000 is a test seed .* plays validation seeds \[99000, 100000\)"):
+        validation.reset(seed=1_000_000)
     test = make(MAIN, scenario=name, split="test")
     test.reset(seed=1_000_009)
     with pytest.raises(DeintError, match=r"seed=5 is a train seed .* plays test seeds \[1000000, 1000010\) only"):
         test.reset(seed=5)
     # unseeded resets draw from the split
-    for env, lo, hi in ((train, 0, 100_000), (test, 1_000_000, 1_000_010)):
+    for env, lo, hi in ((train, 0, 99_000), (validation, 99_000, 100_000), (test, 1_000_000, 1_000_010)):
         env.reset(seed=None)
         for _ in range(5):
             env.reset()
@@ -481,8 +487,8 @@ def test_split_needs_a_suite_scenario():
     spec = short("core-v0/core-n2-spread1.5-jitter0.05", 100)  # changed: in no suite
     with pytest.raises(DeintError, match="needs a suite scenario"):
         make(MAIN, scenario=spec, split="train")
-    with pytest.raises(DeintError, match=r"split='validation' is invalid: None, 'train' or 'test'"):
-        make(MAIN, split="validation")
+    with pytest.raises(DeintError, match=r"split='dev' is invalid: None, 'train', 'validation' or 'test'"):
+        make(MAIN, split="dev")
     # a spec equal to a suite's, and a bare scenario name, find their seed ranges
     same = resolve_scenario("core-v0/core-n2-spread1.5-jitter0.05")
     assert make(MAIN, scenario=same.to_dict(), split="test").unwrapped.split.scenario == \

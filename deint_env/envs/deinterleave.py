@@ -17,11 +17,10 @@ from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
 from deint_env.metrics import label_metrics
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
-from deint_env.suites import SeedRange, find_entry, list_suites, load_suite, resolve_scenario
+from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite, resolve_scenario
 
 DEFAULT_SCENARIO = "paper-v0/mk94-two-var1"
 _BIG = float(np.finfo(np.float64).max)  # TOAs may be any finite float64; Gymnasium warns on infinite bounds
-SPLITS = ("train", "test")
 
 
 def observation_space() -> spaces.Dict:
@@ -45,13 +44,13 @@ class SplitRange(NamedTuple):
 
     split: str
     scenario: str  # "suite/scenario", for the error messages
-    seeds: SeedRange
-    other: SeedRange  # the other split's seeds
+    seeds: range
+    entry: SuiteEntry
 
     def check(self, seed: int) -> None:
-        if not self.seeds.start <= seed < self.seeds.stop:
-            what = f"a {SPLITS[1 - SPLITS.index(self.split)]} seed" if self.other.start <= seed < self.other.stop \
-                else "not a seed of either split"
+        if seed not in self.seeds:
+            other = [s for s in SPLITS if s != self.split and seed in self.entry.seeds(s)]
+            what = f"a {other[0]} seed" if other else "not a seed of any split"
             raise DeintError(f"seed={seed} is {what} of {self.scenario}: this env (split={self.split!r}) plays "
                              f"{self.split} seeds [{self.seeds.start}, {self.seeds.stop}) only")
 
@@ -65,7 +64,7 @@ def split_seeds(scenario: ScenarioSpec | str | dict | None, spec: ScenarioSpec |
     if split is None:
         return None
     if split not in SPLITS:
-        raise DeintError(f"split={split!r} is invalid: None, 'train' or 'test'")
+        raise DeintError(f"split={split!r} is invalid: None, 'train', 'validation' or 'test'")
     if isinstance(scenario, str):
         entry, suite = find_entry(scenario), scenario.split("/", 1)[0] if "/" in scenario else None
     else:
@@ -76,8 +75,7 @@ def split_seeds(scenario: ScenarioSpec | str | dict | None, spec: ScenarioSpec |
                              "no suite: name one as SUITE/SCENARIO, or use split=None")
         suite, entry = found[0]
     suite = suite or next(s for s in list_suites() if any(e is entry for e in load_suite(s)))
-    seeds, other = (entry.train, entry.test) if split == "train" else (entry.test, entry.train)
-    return SplitRange(split, f"{suite}/{entry.name}", seeds, other)
+    return SplitRange(split, f"{suite}/{entry.name}", entry.seeds(split), entry)
 
 
 def _label(action: Any) -> int | None:
@@ -146,7 +144,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
     default "paper-v0/mk94-two-var1").  `lag`: decision delay D >= 0.  `render_mode`: None, "ansi"
     or "rgb_array".  `clustering_metrics`: whether the metrics include the clustering scores
     (V-measure, ARI, AMI, ...; True; computed with numpy from the contingency table, ~0.3 ms for a
-    500-pulse episode).  `split`: None, "train" or "test": play only that split's seeds of a suite
+    500-pulse episode).  `split`: None, "train", "validation" or "test": play only that split's seeds of a suite
     scenario; a reset with any other seed raises `DeintError`.
 
     ## Version History

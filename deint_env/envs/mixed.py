@@ -11,12 +11,8 @@ from gymnasium.vector import AutoresetMode
 from deint_env.envs.vector import DeinterleaveVectorEnv
 from deint_env.errors import DeintError
 from deint_env.simulate import simulate_many
-from deint_env.suites import SuiteEntry, find_entry, list_suites, load_suite
+from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite
 
-SPLITS = ("train", "validation", "test")
-# The last seeds of every train range are held out of training for validation (early stopping, model
-# selection): "train" plays the rest of the train range, "validation" only those.
-VALIDATION_SEEDS = 1000
 
 
 def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = None,
@@ -42,14 +38,8 @@ def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = N
 
 
 def split_seeds(entry: SuiteEntry, split: str) -> range:
-    """The episode seeds of `entry` in `split` (module constants)."""
-    if split not in SPLITS:
-        raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
-    if split == "test":
-        return range(entry.test.start, entry.test.stop)
-    hold = min(VALIDATION_SEEDS, len(entry.train) // 2)
-    cut = entry.train.stop - hold
-    return range(entry.train.start, cut) if split == "train" else range(cut, entry.train.stop)
+    """The episode seeds of `entry` in `split` (`SuiteEntry.seeds`)."""
+    return entry.seeds(split)
 
 
 class MixedScenarioVectorEnv(DeinterleaveVectorEnv):

@@ -1,8 +1,10 @@
 """Scenario suites: named, versioned lists of scenarios (bsuite style: settings + tags) kept as JSON data.
 
 Each suite file `deint_env/suites/<name>.json` holds the scenarios, their tags and settings, and two
-disjoint seed ranges: `train` (tuning, training agents) and `test` (the only seeds a leaderboard
-scores).  A suite's content hash covers everything that could move a score; `HISTORY.json` records
+disjoint seed ranges, `train` and `test`.  They make three splits (`SuiteEntry.seeds`): "train" (the
+train range but its last `VALIDATION_SEEDS`: training agents), "validation" (those last seeds: every
+choice -- a preset, a checkpoint, a version, a search setting) and "test" (the only seeds a
+leaderboard scores, looked at once per finished version).  A suite's content hash covers everything that could move a score; `HISTORY.json` records
 the hash of every published version, and a published version never changes: a change makes a new
 version (`core-v1`) with its own entry.  `deint_env/suites/build.py` wrote the files.
 """
@@ -20,6 +22,10 @@ from deint_env.errors import DeintError
 from deint_env.scenario import ScenarioSpec
 
 TAGS = ("jitter", "missing", "spurious", "agile", "scale", "blind", "paper")
+SPLITS = ("train", "validation", "test")
+# The last seeds of every train range are held out of training for validation; the rule is the same
+# for every suite, so it is not part of a suite's content (validation seeds never move a test score).
+VALIDATION_SEEDS = 1000
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,16 @@ class SuiteEntry:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    def seeds(self, split: str) -> range:
+        """The episode seeds of `split`: "train" (the train range but its last `VALIDATION_SEEDS`),
+        "validation" (those last seeds; half the range if it is short) or "test"."""
+        if split not in SPLITS:
+            raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
+        if split == "test":
+            return range(self.test.start, self.test.stop)
+        cut = self.train.stop - min(VALIDATION_SEEDS, len(self.train) // 2)
+        return range(self.train.start, cut) if split == "train" else range(cut, self.train.stop)
 
 
 @dataclass(frozen=True)

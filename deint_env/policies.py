@@ -79,6 +79,11 @@ class PolicyInfo:
     extra: str | None = None
     required: tuple[str, ...] = ()  # parameters every spec must name (agent's checkpoint, tdc's model)
     provider: str = ""  # the entry point (or "register_policy") it came from
+    # the built policy's own `version` keys its results (a learned checkpoint's hash, a tuned preset's)
+    instance_version: bool = False
+    # learned policies: the parameters that switch the learned part off ("network=off"), played beside
+    # the policy on every board so that its row can show what the learning adds (its learned share)
+    ablation: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -87,6 +92,8 @@ class PolicyInfo:
             raise ValueError(f"policy {self.name!r}: modes={self.modes!r} is invalid: a non-empty subset of {MODES}")
         if isinstance(self.version, bool) or not isinstance(self.version, int) or self.version < 1:
             raise ValueError(f"policy {self.name!r}: version={self.version!r} is invalid: an integer >= 1")
+        if self.ablation is not None and parse_policy_spec(f"{self.name}:{self.ablation}")[1] == {}:
+            raise ValueError(f"policy {self.name!r}: ablation={self.ablation!r} is invalid: key=value parameters")
 
     @property
     def oracle(self) -> bool:
@@ -272,13 +279,23 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
 
 def spec_version(spec: str, policy: Policy | None = None) -> int | str:
     """What results of `spec` are keyed on: a learned agent's own `version` (its checkpoint's content
-    hash, so retraining to the same path never reuses old results), else the registry's `version`.
-    Only a learned policy is built for it (when `policy` is not given)."""
+    hash, so retraining to the same path never reuses old results) or a tuned entry's (its preset's),
+    else the registry's `version`.  Only those policies are built for it (when `policy` is not given)."""
     info = policy_info(parse_policy_spec(spec)[0])
-    if info.kind != "learned":
+    if info.kind != "learned" and not info.instance_version:
         return info.version
     own = getattr(policy if policy is not None else make_policy(spec), "version", None)
     return own if own is not None else info.version
+
+
+def ablation_spec(spec: str) -> str | None:
+    """`spec` with its learned part switched off (the registry's `ablation` parameters), canonical; None
+    for a policy without one."""
+    name, kwargs = parse_policy_spec(spec)
+    info = policy_info(name)
+    if info.ablation is None:
+        return None
+    return canonical_spec(name, {**kwargs, **parse_policy_spec(f"{name}:{info.ablation}")[1]})
 
 
 def is_oracle(spec: str) -> bool:

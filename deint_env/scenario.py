@@ -22,6 +22,10 @@ import numpy as np
 from deint_env.errors import DeintError, check
 
 MAX_SOURCES = 64  # merged-pulse membership is a uint64 bit mask
+# One time scale per scenario (ScenarioSpec._check_time_scales): the published suites span periods
+# 0.125-160, phases within 5 periods and jitter within 10 of the smallest period
+MIN_PERIOD, MAX_PERIOD, MAX_PERIOD_RATIO = 1e-9, 1e12, 1e4
+MAX_SAMPLES = 5e7  # a waveform front end's samples per episode (each is a Kalman step of the detector)
 
 
 @dataclass(frozen=True)
@@ -490,6 +494,7 @@ class ScenarioSpec:
         check(self.merge in MERGE_MODELS, "merge", self.merge, f"one of {', '.join(MERGE_MODELS)}")
         check(self.merge == "received" or self.coincidence_resolution > 0, "merge", self.merge,
               "'emission' needs a coincidence_resolution > 0 (how close noise-free arrivals merge)")
+        self._check_time_scales(srcs)
         min_period = min(_param_low(s.period) * s.modulation.min_ratio() for s in srcs)
         check(self.pri_jitter_std <= min_period / 3, "pri_jitter_std", self.pri_jitter_std,
               f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")
@@ -513,6 +518,12 @@ class ScenarioSpec:
             object.__setattr__(self, "waveform", _from_dict(WaveformSpec, self.waveform, "waveform"))
         check(self.waveform is None or isinstance(self.waveform, WaveformSpec), "waveform", self.waveform,
               "a WaveformSpec or null")
+        if self.waveform is not None:  # the front end walks every sample of the episode: bound how many
+            highs = [src.period.high if isinstance(src.period, Range) else src.period for src in srcs]
+            samples = self.n_pulses * max(highs) / len(srcs) / self.waveform.sample_period
+            check(samples <= MAX_SAMPLES, "waveform.sample_period", self.waveform.sample_period,
+                  f"at least {self.n_pulses * max(highs) / len(srcs) / MAX_SAMPLES:.3g}: {self.n_pulses} pulses "
+                  f"of periods up to {max(highs):g} would need ~{samples:.3g} samples (at most {MAX_SAMPLES:.0e})")
         if isinstance(self.priors, dict):
             object.__setattr__(self, "priors", _from_dict(PriorSpec, self.priors, "priors"))
         check(isinstance(self.priors, PriorSpec), "priors", self.priors, "a PriorSpec")
@@ -543,6 +554,25 @@ class ScenarioSpec:
         check(any(not s.active or s.active[-1][1] >= 1.0 for s in srcs[:always]), "source.active",
               [list(map(list, s.active)) for s in srcs[:always]],
               "a source every episode plays must stay on to the end (no windows, or a last window with stop >= 1)")
+
+    def _check_time_scales(self, srcs: tuple[SourceSpec, ...]) -> None:
+        """Periods, phases and jitter on one time scale: the simulator sizes each source's schedule by the
+        horizon over its period, so a period of 1e-300 beside one of 10 (or a phase of 1e300) would ask
+        for an astronomically long schedule instead of failing here with one line."""
+        lows = [_param_low(s.period) for s in srcs]
+        highs = [s.period.high if isinstance(s.period, Range) else s.period for s in srcs]
+        for v in lows + highs:
+            check(MIN_PERIOD <= v <= MAX_PERIOD, "source.period", v, f"in [{MIN_PERIOD:g}, {MAX_PERIOD:g}] (TOA units)")
+        check(max(highs) <= MAX_PERIOD_RATIO * min(lows), "source.period", [min(lows), max(highs)],
+              f"periods within a factor {MAX_PERIOD_RATIO:g} of one another (one time scale per scenario)")
+        for s in srcs:
+            if s.phase is not None:
+                lo, hi = (s.phase.low, s.phase.high) if isinstance(s.phase, Range) else (s.phase, s.phase)
+                check(max(abs(lo), abs(hi)) <= MAX_PERIOD_RATIO * max(highs), "source.phase", s.phase,
+                      f"within {MAX_PERIOD_RATIO:g} times the largest period ({max(highs):g}) of 0; a late start is "
+                      "an `active` window")
+        check(self.toa_jitter_std <= MAX_PERIOD_RATIO * max(highs), "toa_jitter_std", self.toa_jitter_std,
+              f"at most {MAX_PERIOD_RATIO:g} times the largest period ({max(highs):g})")
 
     # ---- derived -------------------------------------------------------------------------------
     @property

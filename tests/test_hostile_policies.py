@@ -132,3 +132,21 @@ def test_sampled_banks_process_samples_bounded_by_the_pulses_seen(monkeypatch, c
             assert sum(processed) <= ekf.MAX_SAMPLES_PER_PULSE * labelled + ekf.MAX_SAMPLES_EXTRA
     assert 0 < labelled < toa.size and math.ceil(toa[labelled] / policy.Ts) > (
         ekf.MAX_SAMPLES_PER_PULSE * (labelled + 1) + ekf.MAX_SAMPLES_EXTRA)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("cdif:x=-1", "x=-1 is invalid: a number in (0, 100]"),
+    ("sdif:k=0", "k=0 is invalid: a number in (0, 100]"),
+    ("sdif:x=2", "x=2 is invalid: a number in (0, 1]"),
+    ("pri-transform:eps=-1", "eps=-1 is invalid: a number in (0, 1)"),
+    ("pri-transform:gamma=1e300", "gamma=1e+300 is invalid"),
+    ("cdif:max_miss=-1", "max_miss=-1 is invalid: an integer in [0, 1000]"),
+    ("sdif:align=maybe", "align='maybe' is invalid: true or false"),
+])
+def test_blind_policy_parameters_out_of_range_are_one_line(capsys, spec, message):
+    """Issue 26: the blind detectors' parameters are checked when the policy is built, not found out as a
+    traceback (or an empty labelling) deep in a histogram."""
+    code = main(["run", "--scenario", "blind-v0/blind-n3to3-jitter0.1", "--policy", spec, "--max-seeds", "1",
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and message in err[0] and spec in err[0]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import pytest
 
@@ -313,3 +314,22 @@ def test_resolution_checked_against_a_drifting_period():
                      coincidence_resolution=1.0)
     ScenarioSpec(name="d", sources=(SourceSpec(period=10.0, modulation=shrink),), n_pulses=400,
                  coincidence_resolution=0.5)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["sources"][0].update(phase=1e300), "source.phase=1e+300 is invalid: within 10000 times"),
+    (lambda d: d["sources"][0].update(phase=-1e300), "source.phase=-1e+300 is invalid"),
+    (lambda d: d["sources"][0].update(period=1e-300), "source.period=1e-300 is invalid: in [1e-09, 1e+12]"),
+    (lambda d: d["sources"][0].update(period=1e300), "source.period=1e+300 is invalid"),
+    (lambda d: d["sources"][0].update(period=1e-3), "periods within a factor 10000 of one another"),
+    (lambda d: d.update(toa_jitter_std=1e300), "toa_jitter_std=1e+300 is invalid: at most 10000 times"),
+])
+def test_one_time_scale_per_scenario_is_checked_at_construction(edit, message):
+    """Issue 26: extreme periods, phases and jitter are refused with one line when the spec is made, not as a
+    multi-GiB allocation (or a minutes-late error) inside the simulator."""
+    d = {"name": "x", "sources": [{"period": 10.0}, {"period": 13.0}], "n_pulses": 100,
+         "priors": {"period_error": 0.01, "phase_error": 0.05}}
+    ScenarioSpec.from_dict(d)
+    edit(d)
+    with pytest.raises(DeintError, match=re.escape(message)):
+        ScenarioSpec.from_dict(d)

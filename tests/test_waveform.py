@@ -52,3 +52,9 @@ def test_front_end_episodes_play_through_the_env_and_round_trip():
 def test_bad_waveform_fields_are_named(bad, field):
     with pytest.raises(DeintError, match=field):
         ScenarioSpec.from_dict({**BASE.to_dict(), "waveform": bad})
+
+
+def test_a_sample_period_too_fine_for_the_episode_is_refused_at_construction():
+    """Issue 26: the front end steps through every sample; 10^-12 would be ~10^15 samples (a memory bomb)."""
+    with pytest.raises(DeintError, match=r"^waveform.sample_period=1e-12 is invalid: at least .* would need ~.* samples"):
+        BASE.replace(waveform=WaveformSpec(sample_period=1e-12, noise_std=0.05))

@@ -178,8 +178,12 @@ class HistogramPolicy(BlindWindowPolicy):
             raise ValueError(f"min_fill={min_fill!r} is invalid: a number in (0, 1]")
         if not presort_eps > 0:
             raise ValueError(f"presort_eps={presort_eps!r} is invalid: a positive number (standardised units)")
+        if isinstance(max_miss, bool) or not isinstance(max_miss, int) or not 0 <= max_miss <= 1000:
+            raise ValueError(f"max_miss={max_miss!r} is invalid: an integer in [0, 1000] (missed pulses bridged)")
+        if not isinstance(align, bool):
+            raise ValueError(f"align={align!r} is invalid: true or false")
         self.presort_eps = float(presort_eps)
-        self.align = bool(align)
+        self.align = align
         self.pri_min, self.pri_max = pri_min, pri_max
         self.min_pulses, self.min_fill, self.max_miss = min_pulses, float(min_fill), int(max_miss)
 

@@ -14,6 +14,8 @@ import math
 import numpy as np
 from numba import njit
 
+from baselines.jit_cache import guard
+from baselines.survivor import same_last
 from deint_env.features import CLIP, PERIOD_GATE, PRIOR_WEIGHT
 
 
@@ -99,7 +101,7 @@ def token_arrays(period, anchor, count, amp_mean, amp_scale, prior_period, k, n,
 def select(cand, anchor, t, beam, merge):
     """The (at most `beam`) best extensions of hypotheses (rows of `cand`, (k, n + 1) scores; column n
     spurious): (parent, label, score) in descending score, with `merge` keeping only the best of
-    extensions whose tracks all last fired on the same pulses."""
+    extensions whose tracks all last fired on the same pulses (`same_last`, pulses keyed by their times)."""
     k, m1 = cand.shape
     n = m1 - 1
     flat = cand.ravel()
@@ -115,15 +117,7 @@ def select(cand, anchor, t, beam, merge):
         if merge:
             dup = False
             for q in range(got):
-                pb, pl = parent[q], label[q]
-                same = True
-                for i in range(n):
-                    x = t if i == lab else anchor[b, i]
-                    y = t if i == pl else anchor[pb, i]
-                    if x != y:
-                        same = False
-                        break
-                if same:
+                if same_last(anchor[b, :n], lab, anchor[parent[q], :n], label[q], t):
                     dup = True
                     break
             if dup:
@@ -177,3 +171,6 @@ def keep_rows(keep, pending, score, period, anchor, count, span_time, span_perio
     pending[:m] = tmpp
     tmps = score[keep].copy()
     score[:m] = tmps
+
+
+guard(globals())

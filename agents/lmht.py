@@ -1,5 +1,5 @@
 """`lmht`: mht's tracker (gating, beam, look-ahead ranking, N-scan pruning, fixed-lag decisions;
-baselines/mht.py) whose candidate scores carry a trained correction (`baselines.mht.Scorer`: one
+baselines/mht/) whose candidate scores carry a trained correction (`baselines.mht.Scorer`: one
 small ReLU network shared by every candidate of every parent, over permutation-free features, its
 output taken relative to the parent's spurious candidate; a track's first pulse keeps mht's score).
 
@@ -20,7 +20,7 @@ the truth of the pulses that follow, which stays well defined since labels are a
 sources).  A pulse no candidate labels rightly (its source outside every gate) adds no example.
 The loss is local (one hypothesis's softmax) while the beam compares hypotheses by summed scores;
 the design choices above (the spurious-relative output, no look-ahead feature, first pulses left
-to mht) are where the two disagreed (see the scorer's comment in baselines/mht.py).
+to mht) are where the two disagreed (see the scorer's comment in baselines/mht/scorer.py).
 """
 
 from __future__ import annotations
@@ -34,11 +34,13 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from agents.ablation import NETWORK, network_off
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
-from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, _count, _initiate, _prior_ahead, _rates,
-                           _step, mlp)
+from baselines.mht import (FEATURE_VERSION, FEATURES, MHT, N_FEATURES, Scorer, count, initiate, mlp, prior_ahead, rates,
+                           step)
 from deint_env.errors import DeintError
 from deint_env.labels import correct_anchored
+from deint_env.params import Param, declare
 from deint_env.policies import policy_info
 
 CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "lmht-v1.safetensors"
@@ -133,7 +135,15 @@ class LMHT(MHT):
     """Policy `lmht`: mht with the checkpoint's learned scorer.  mht's parameters are the spec's, else
     SEARCH's, else the checkpoint's (its training search, hyper-parameters `mht`), else mht's."""
 
-    def __init__(self, checkpoint: str | None = None, **kwargs: Any):
+    PARAMS = declare(
+        Param("checkpoint", str, None, "the scorer's checkpoint (none: agents/checkpoints/lmht-v1.safetensors); its "
+              "training search sets the mht parameters SEARCH leaves", optional=True),
+        NETWORK,
+    ).plus(*MHT.PARAMS.changed(**SEARCH))  # mht's parameters, SEARCH's defaults
+
+    def __init__(self, checkpoint: str | None = None, network: str = "on", **kwargs: Any):
+        self.PARAMS.only("checkpoint").check(locals())  # network: network_off; kwargs: MHT's own check
+        off = network_off(network)  # the ablation: no learned correction, mht with SEARCH's settings
         path = Path(checkpoint if checkpoint is not None else CHECKPOINT).resolve()
         try:
             st = path.stat()
@@ -141,7 +151,7 @@ class LMHT(MHT):
             raise DeintError(f"checkpoint {path} does not exist (train one with `python -m agents.lmht`)") from None
         key, scorer, self.meta = _load(str(path), st.st_mtime_ns, st.st_size)
         params = {**self.meta.hyperparameters.get("mht", {}), **SEARCH, **kwargs}
-        super().__init__(scorer=scorer, **params)
+        super().__init__(scorer=None if off else scorer, **params)
         # its labels change with the checkpoint, the feature layout, SEARCH, and mht's search (its registry
         # version)
         self.version = f"{key}/lmht-{FEATURE_VERSION}.{SEARCH_VERSION}/mht-{policy_info('mht').version}"
@@ -162,15 +172,15 @@ def _follow(toa, ok, cur, nxt, zob, prior, w, cfg, net, counts, u, beta, feat, b
     size = 1
     acc = np.empty(net.b1.shape[0])
     for k in range(n_pulses):
-        log_q, log_1mq, log_rho = _rates(cfg, counts, toa[k - 1] - toa[0] if k > 0 else 0.0)
+        log_q, log_1mq, log_rho = rates(cfg, counts, toa[k - 1] - toa[0] if k > 0 else 0.0)
         if k == 0:
             if cfg.initiate:
                 end = min(cfg.reserve + 1, np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right"))
-                _initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
+                initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
             if cfg.prior_ahead:
-                _prior_ahead(toa, n_pulses, cur, cfg, log_q, log_1mq, w)
+                prior_ahead(toa, n_pulses, cur, cfg, log_q, log_1mq, w)
         w.parent[:] = -1  # candidates are written from 0 on: the first untouched row ends them
-        size = _step(toa, n_pulses, k, size, cur, nxt, zob, prior, cfg.start_beam, cfg.look, cfg, log_q, log_1mq,
+        size = step(toa, n_pulses, k, size, cur, nxt, zob, prior, cfg.start_beam, cfg.look, cfg, log_q, log_1mq,
                      log_rho, w, net, True)
         nc = 0
         while nc < w.parent.size and w.parent[nc] >= 0:
@@ -198,7 +208,7 @@ def _follow(toa, ok, cur, nxt, zob, prior, w, cfg, net, counts, u, beta, feat, b
                 if ok[k, nxt.label[o, slot]]:
                     pick = o
                     break
-        _count(counts, nxt.label[pick, slot], nxt.missed[pick, slot], n)
+        count(counts, nxt.label[pick, slot], nxt.missed[pick, slot], n)
         cur.blk[0] = nxt.blk[pick]
         cur.arrivals[0] = nxt.arrivals[pick]
         cur.last[0] = nxt.last[pick]
@@ -272,7 +282,7 @@ class TorchScorer:
 
 
 def logits_of(net, feat, base, group, n_groups):
-    """base + f(x_j) - f(x_spurious) as `baselines.mht._learned` scores (0 for the spurious candidate and
+    """base + f(x_j) - f(x_spurious) as `baselines.mht.scorer._learned` scores (0 for the spurious candidate and
     a track's first pulse, x_7 = log(1 + arrivals) = 0)."""
     import torch
 

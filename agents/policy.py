@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from agents.ablation import NETWORK, network_off
 from agents.beam import VERSION as BEAM_VERSION
 from agents.beam import BeamDecoder
 from agents.checkpoint import Checkpoint, load_checkpoint
@@ -30,6 +31,7 @@ from agents.networks import (PulseLayout, RecurrentTrackPolicy, action_scores, b
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.features import TrackFeatures
+from deint_env.params import REQUIRED, Param, declare
 from deint_env.policies import policy_rng
 from deint_env.wrappers import FeatureTracker
 
@@ -64,15 +66,33 @@ def checkpoint_version(checkpoint: str | os.PathLike) -> str:
     return load_agent(checkpoint)[0].key
 
 
+PARAMS = declare(
+    Param("checkpoint", str, REQUIRED, "the deint checkpoint file (PATH.safetensors)"),
+    Param("deterministic", bool, True, "the likeliest label (false: sampled, seeded by the runner's policy seed)"),
+    NETWORK,
+)
+BEAM_PARAMS = declare(
+    PARAMS["checkpoint"],
+    Param("beam", int, 8, "hypotheses kept", low=1, high=4096),
+    Param("decision_lag", int, 8, "pulses after its first score that a label is decided (added to the lag)", low=0,
+          high=1000),
+    Param("consistency", float, 0.0, "the weight of the value head's whole-hypothesis score (needs a checkpoint "
+          "trained for it)", low=0),
+    NETWORK,
+)
+
+
 class AgentPolicy:
     """A learned agent from a checkpoint (module doc).  `deterministic=False` samples its labels,
     seeded per episode from the runner's policy seed."""
 
-    def __init__(self, checkpoint: str, deterministic: bool = True):
-        if not isinstance(deterministic, bool):  # bool("maybe") is True: a typo would pass as a choice
-            raise DeintError(f"deterministic={deterministic!r} is invalid: true or false")
+    PARAMS = PARAMS
+
+    def __init__(self, checkpoint: str, deterministic: bool = True, network: str = "on"):
+        PARAMS.only("deterministic").check(locals())  # checkpoint: a str or a path
         self.checkpoint = str(Path(checkpoint).resolve())
         self.deterministic = deterministic
+        self._off = network_off(network)
         torch.set_num_threads(1)  # a batch of one observation: thread hand-offs cost more than they save
         ck, self._net = load_agent(self.checkpoint)
         self.meta, self.version = ck.meta, ck.key
@@ -107,6 +127,12 @@ class AgentPolicy:
                 self._state = self._net.initial_state(1)
         self._rng = None if self.deterministic else policy_rng(info, None)
 
+    def _scores(self, features: np.ndarray) -> np.ndarray:
+        """The network's action scores, or with `network=off` all 0 (its output zeroed: no forward pass)."""
+        if self._off:
+            return np.zeros(self.layout.n_actions)
+        return action_scores(self._net, features)[0].numpy()
+
     def _choose(self, scores: np.ndarray, mask: np.ndarray | None) -> int:
         scores = scores.astype(np.float64)
         if mask is not None:
@@ -122,23 +148,25 @@ class AgentPolicy:
             tracker.observe(obs)
             if not tracker.ready:
                 return 0
-            label = self._choose(action_scores(self._net, tracker.features()[None, :])[0].numpy(), None)
+            label = self._choose(self._scores(tracker.features()[None, :]), None)
             tracker.label(label)
             return label
         tok = self._tokens
         tok.observe(obs["toa"], obs["amplitude"], obs["valid"])
-        if self._recurrent:  # the memory steps on every env step, as it did in training
+        if self._recurrent and not self._off:  # the memory steps on every env step, as it did in training
             logits, self._state = recurrent_scores(self._net, tok.observation(), self._state, np.zeros(1))
         if not tok.ready[0]:
             return 0  # labels nothing (a look-ahead step or a padding step)
-        if not self._recurrent:
-            logits = action_scores(self._net, tok.observation())
-        action = self._choose(logits[0].numpy(), tok.action_masks()[0])
+        if self._off:
+            scores = np.zeros(tok.action_masks().shape[1])
+        else:
+            scores = (logits if self._recurrent else action_scores(self._net, tok.observation()))[0].numpy()
+        action = self._choose(scores, tok.action_masks()[0])
         tok.label(np.array([action]))
         return int(tok.env_actions(np.array([action]), self._spurious)[0])
 
 
-def agent(checkpoint: str, deterministic: bool = True) -> Any:
+def agent(checkpoint: str, deterministic: bool = True, network: str = "on") -> Any:
     """`agent:checkpoint=PATH`: the agent of any deint checkpoint, rebuilt as its architecture says
     (the sequence labeller's by `agents.sequence.SequencePolicy`, an mht scorer's by `agents.lmht.LMHT`;
     both always deterministic)."""
@@ -147,10 +175,13 @@ def agent(checkpoint: str, deterministic: bool = True) -> Any:
 
     name = load_checkpoint(checkpoint).meta.architecture.get("name")
     if name == ARCHITECTURE:
-        return SequencePolicy(checkpoint)
+        return SequencePolicy(checkpoint, network=network)
     if name == lmht.ARCHITECTURE:
-        return lmht.LMHT(checkpoint)
-    return AgentPolicy(checkpoint, deterministic)
+        return lmht.LMHT(checkpoint, network=network)
+    return AgentPolicy(checkpoint, deterministic, network)
+
+
+agent.PARAMS = PARAMS  # type: ignore[attr-defined]
 
 
 class BeamPolicy:
@@ -159,7 +190,12 @@ class BeamPolicy:
     is the network's look-ahead plus `decision_lag`; `consistency` weighs the value head's whole-hypothesis
     score (agents.beam).  `version` is the checkpoint's content hash and the decoder's version."""
 
-    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8, consistency: float = 0.0):
+    PARAMS = BEAM_PARAMS
+
+    def __init__(self, checkpoint: str, beam: int = 8, decision_lag: int = 8, consistency: float = 0.0,
+                 network: str = "on"):
+        BEAM_PARAMS.only("beam", "decision_lag", "consistency").check(locals())
+        off = network_off(network)
         self.checkpoint = str(Path(checkpoint).resolve())
         ck, _ = load_agent(self.checkpoint)
         if ck.meta.architecture.get("name") != "track-net":
@@ -171,7 +207,7 @@ class BeamPolicy:
         if consistency and not ck.meta.hyperparameters.get("consistency_weight"):
             raise DeintError(f"consistency={consistency} needs a checkpoint whose value head was trained for it "
                              f"(DAgger with consistency_weight > 0); {checkpoint} was not")
-        self._decoder = BeamDecoder(numpy_net(self.checkpoint), layout, beam, decision_lag, consistency=consistency)
+        self._decoder = BeamDecoder(numpy_net(self.checkpoint, off), layout, beam, decision_lag, consistency=consistency)
         self.lag = layout.lookahead + self._decoder.decision_lag
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -184,31 +220,51 @@ class BeamPolicy:
         return 0 if label is None else label  # label n (spurious) is the env's spurious label n as well
 
 
+# the track network's output layers: the tracks' score read-out and the spurious logit
+_OUTPUT_LAYERS = ("score.2.weight", "score.2.bias", "spurious.weight", "spurious.bias")
+
+
 @functools.lru_cache(maxsize=8)
-def _numpy_net(path: str, mtime_ns: int, size: int) -> NumpyTrackNet:
+def _numpy_net(path: str, mtime_ns: int, size: int, off: bool) -> NumpyTrackNet:
     ck, _ = _load(path, mtime_ns, size)
-    return NumpyTrackNet(ck.tensors, ck.meta.architecture.get("heads", 4))
+    tensors = dict(ck.tensors)
+    if off:  # every candidate's logit 0: uniform log-probabilities, the beam search alone
+        for key in [k for k in tensors if k.endswith(_OUTPUT_LAYERS)]:
+            tensors[key] = tensors[key] * 0
+    return NumpyTrackNet(tensors, ck.meta.architecture.get("heads", 4))
 
 
-def numpy_net(checkpoint: str | os.PathLike) -> NumpyTrackNet:
-    """The checkpoint's actor as numpy matrices, once per process and file version."""
+def numpy_net(checkpoint: str | os.PathLike, off: bool = False) -> NumpyTrackNet:
+    """The checkpoint's actor as numpy matrices (`off`: its output layers zeroed), once per process and
+    file version."""
     path = Path(checkpoint).resolve()
     st = path.stat()
-    return _numpy_net(str(path), st.st_mtime_ns, st.st_size)
+    return _numpy_net(str(path), st.st_mtime_ns, st.st_size, off)
 
 
-def dagger(deterministic: bool = True) -> AgentPolicy:
+def dagger(deterministic: bool = True, network: str = "on") -> AgentPolicy:
     """The zoo's DAgger agent for core-v0 (`deint train --suite core-v0 --algo dagger`)."""
-    return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic)
+    return AgentPolicy(str(DAGGER_CHECKPOINT), deterministic, network)
 
 
-def dagger_beam(beam: int = 8, decision_lag: int = 20, consistency: float = ZOO_CONSISTENCY) -> BeamPolicy:
+dagger.PARAMS = PARAMS.only("deterministic", "network")  # type: ignore[attr-defined]
+
+
+def dagger_beam(beam: int = 8, decision_lag: int = 20, consistency: float = ZOO_CONSISTENCY,
+                network: str = "on") -> BeamPolicy:
     """The zoo's agent for core-v0, robust-v0 and agile-v0 together: DAgger on their train seeds
     (agents/hyperparams/dagger-all.yml), decoded with a beam."""
-    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag, consistency)
+    return BeamPolicy(str(ZOO_CHECKPOINT), beam, decision_lag, consistency, network)
 
 
-def ppo(checkpoint: str | None = None, deterministic: bool = True) -> AgentPolicy:
+dagger_beam.PARAMS = BEAM_PARAMS.only(  # type: ignore[attr-defined]
+    "beam", "decision_lag", "consistency", "network").changed(decision_lag=20, consistency=ZOO_CONSISTENCY)
+
+
+def ppo(checkpoint: str | None = None, deterministic: bool = True, network: str = "on") -> AgentPolicy:
     """The checked-in PPO agent (two sources), or another checkpoint."""
-    return AgentPolicy(str(PPO_CHECKPOINT) if checkpoint is None else checkpoint, deterministic)
+    return AgentPolicy(str(PPO_CHECKPOINT) if checkpoint is None else checkpoint, deterministic, network)
+
+
+ppo.PARAMS = PARAMS.changed(checkpoint=None)  # type: ignore[attr-defined]
 

@@ -39,10 +39,12 @@ import numpy as np
 import torch
 from torch import nn
 
+from agents.ablation import NETWORK, network_off
 from agents.config import TrainConfig, TrainResult
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, correct_link, true_predecessors
+from deint_env.params import Param, declare
 
 ARCHITECTURE = "seq-pointer"
 FEATURE_LAYOUT = "pointer-pairs"
@@ -333,13 +335,20 @@ class SequencePolicy:
     `margin`: how much a taken predecessor must outscore every free one before the pulse opens a new
     chain instead (`ChainDecoder`)."""
 
-    def __init__(self, checkpoint: str | None = None, batch: int = 1, margin: float = DEFAULT_MARGIN):
+    PARAMS = declare(
+        Param("checkpoint", str, None, "the checkpoint (none: agents/checkpoints/seq-blind-v0.safetensors)",
+              optional=True),
+        Param("batch", int, 1, "pulses scored per pass (the lag grows by batch - 1)", low=1, high=4096),
+        Param("margin", float, DEFAULT_MARGIN, "logits a taken predecessor must outscore every free one by before "
+              "the pulse opens a new chain", low=0),
+        NETWORK,
+    )
+
+    def __init__(self, checkpoint: str | None = None, batch: int = 1, margin: float = DEFAULT_MARGIN,
+                 network: str = "on"):
         from agents.checkpoint import load_checkpoint
 
-        if isinstance(batch, bool) or not isinstance(batch, int) or not 1 <= batch <= 4096:
-            raise ValueError(f"batch={batch!r} is invalid: an integer in [1, 4096] (pulses scored per pass)")
-        if not (isinstance(margin, (int, float)) and not isinstance(margin, bool) and 0 <= margin < math.inf):
-            raise ValueError(f"margin={margin!r} is invalid: a finite number >= 0 (logits)")
+        self.PARAMS.only("batch", "margin").check(locals())  # checkpoint: a str or a path
         torch.set_num_threads(1)
         path = Path(checkpoint) if checkpoint else CHECKPOINT
         ck = load_checkpoint(path)
@@ -349,6 +358,10 @@ class SequencePolicy:
         self.net = build_net(ck.meta.architecture, where)
         self.net.load_state_dict(ck.tensors, strict=True)
         self.net.eval()
+        if network_off(network):  # the ablation: both read-outs zeroed, every candidate's logit 0
+            with torch.no_grad():
+                for layer in (self.net.out, self.net.chain[2]):
+                    layer.weight.zero_(), layer.bias.zero_()
         self.head = ChainHead(self.net)
         self.margin = float(margin)
         self.version = f"{ck.key}+decoder{DECODER_VERSION}"  # results keyed on the weights and the decoding

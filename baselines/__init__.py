@@ -4,9 +4,19 @@
 `deint_env.make_policy("NAME:key=value")` builds one.  Importing this package imports no algorithm.
 """
 
+from deint_env.divisions import DIVISIONS
+from deint_env.params import REQUIRED, Param, declare
 from deint_env.policies import Limits, PolicyInfo
 
 ANCHORED, BLIND = ("anchored",), ("blind",)
+# The trackers' cost grows with the tracks they carry (mht ~6 s for 2,000 pulses at 256 tracks, ~10x that at
+# 1,000; renewal-ml ~4 s at 64, 44 s at 256): a file with more prior tracks is refused as not applicable
+# instead of a run of minutes to hours (the simulator's scenes have at most 64 sources)
+TRACKS, FEW_TRACKS = Limits(max_sources=256), Limits(max_sources=64)
+# the parameters of every BASE-tuned entry (baselines.tuned)
+TUNED_PARAMS = declare(
+    Param("suite", str, REQUIRED, "the suite whose preset is played: baselines/presets/BASE/SUITE.DIVISION.json"),
+    Param("division", str, "offline", "the division whose preset is played", choices=tuple(DIVISIONS)))
 
 POLICIES = (
     PolicyInfo("random", "baselines.floors:RandomPolicy", description="uniform random labels (floor)"),
@@ -23,15 +33,18 @@ POLICIES = (
     PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=2,
                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
     PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
+               limits=TRACKS,
                description="MK94 IV-2: probabilistic teacher drawing the source from the a-priori probabilities"),
     # pt-post/dokf version 2: missed arrivals as scored hypotheses, Theorem 1 with P_D q^m, online rates,
     # decorrelating dropout reset, unknown phases uniform over the first period; pt-post coasts off a clean channel
     PolicyInfo("pt-post", "baselines.pt:PTPost", modes=ANCHORED, version=2,
+               limits=TRACKS,
                description="MK94 IV: probabilistic teacher drawing the source from the a-posteriori (4.1)-(4.3)"),
     # dokf version 3 (issue #22): the start beam for every start (known phases too), missed arrivals scored
     # whenever coasting (a stated missing_prob of 0 turned them off), Theorem 1's lambda floored after the
     # start (a stated spurious_rate of 0 turned the test off); labels change on every suite (pt-post's on none)
     PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=3,
+               limits=TRACKS,
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),
     # mht version 2: scratch arrays sized for restarts (version 1 could write past them); version 3: joint
@@ -47,18 +60,24 @@ POLICIES = (
     # pulse count (labels change where rates are unknown, on paper-v0's mk94-two-var3, and where a source
     # starts late: its prior look-ahead is then misplaced -- one robust-onset test episode, -0.14)
     PolicyInfo("mht", "baselines.mht:MHT", modes=ANCHORED, version=6,
+               limits=TRACKS,
+               division_params=(("online", "lag=3,nscan=3"), ("low-latency", "lag=64")),
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
     PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,
+               limits=TRACKS,
                description="agile PRIs: a bank of PRI state models per source (the one the priors name, else "
                            "constant/trend/stagger/switch) on the Kalman core, MAP assignment, coasting"),
-    PolicyInfo("renewal-ml", "baselines.agile:RenewalML",
+    PolicyInfo("renewal-ml", "baselines.agile:RenewalML", division_params=(("online", "lag=3"),),
+               limits=FEW_TRACKS,
                description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
                            "with missing and spurious pulses; blind mode: tracks born from the pulses"),
     PolicyInfo("ekf-bank", "baselines.ekf:EKFBank", modes=ANCHORED,
+               limits=TRACKS,
                description="CM00: EKF on the sampled pulse count (one-term Fourier smoothing), a bank of random "
                            "phase initialisations; labels from the best filter's predicted arrivals"),
     PolicyInfo("ekf-coupled", "baselines.coupled:EKFCoupled", modes=ANCHORED,
+               limits=TRACKS,
                description="per-train EKFs on the pulse count coupled by inhibitory cells with LP's fourth-order "
                            "learning rule (12), in a bank as ekf-bank"),
     PolicyInfo("tdc", "baselines.tdc_adapter:TDCDeinterleaver", kind="adapter", modes=BLIND, required=("model",),
@@ -67,6 +86,7 @@ POLICIES = (
     # cdif/sdif/pri-transform version 2: long periodic PRIs (sweep, wobulation, dwell) kept one train with
     # their model; drifting pieces merged; a parabola walk for deep wobulation
     PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND, version=2,
+               division_params=(("low-latency", "window=65"),),
                description="blind: Mardia's CDIF histogram (1989) + sequence search + re-association (window=1000)"),
     PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND, version=2,
                description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association"),
@@ -76,4 +96,13 @@ POLICIES = (
                description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)"),
     PolicyInfo("hdbscan", "baselines.blind.clustering:HDBSCANPolicy", modes=BLIND,
                description="blind: scikit-learn HDBSCAN on pulse descriptors (the TDC baseline's method)"),
+    # tuned references (issue #23): parameters chosen by `deint tune` on a suite's validation seeds, read from
+    # baselines/presets/BASE/SUITE.DIVISION.json (division= picks one; default offline); results are keyed on
+    # the preset (the instance's version); a board plays every preset made for its suite (variants)
+    *(PolicyInfo(f"{base}-tuned", f"baselines.tuned:{base.replace('-', '_')}_tuned", modes=modes,
+                 instance_version=True, required=("suite",), variants="baselines.tuned:variants", params=TUNED_PARAMS,
+                 description=f"{base} with the parameters `deint tune` chose on the suite's validation seeds "
+                             "(suite=SUITE, division=offline|low-latency|online)")
+      for base, modes in (("mht", ANCHORED), ("fdp", ANCHORED), ("dokf", ANCHORED), ("renewal-ml", ANCHORED + BLIND),
+                          ("cdif", BLIND))),
 )

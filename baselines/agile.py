@@ -46,6 +46,7 @@ from baselines.kalman import LinearBlock, linear_innovation, linear_predict, lin
 from baselines.pri_models import TAU, BankArrays
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
+from deint_env.params import Param, ParamSet, declare
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
 _MISS_FLOOR = 1e-3  # p_miss used for coasting when the priors say nothing is missed (a track can slip)
@@ -144,6 +145,25 @@ def _uniform_log(alive: np.ndarray) -> np.ndarray:
     return np.where(alive, -np.log(np.maximum(alive.sum(axis=-1, keepdims=True), 1)), -np.inf)
 
 
+PARAMS = declare(
+    Param("beam", int, 1, "hypotheses kept", low=1, high=4096),
+    Param("lag", int, 0, "pulses of look-ahead before a label is final", low=0, high=256),
+    Param("gate", float, 5.0, "the overdue test's width, in predicted standard deviations", low=0, low_open=True),
+    Param("switch", float, 0.01, "the per-pulse model switching probability", low=0, high=1, high_open=True),
+    Param("bank", str, "priors", "priors: the model the priors name (else the default bank); default: always the "
+          "bank", choices=("priors", "default")),
+    Param("identify", int, 100, "after a source's identify-th pulse its bank keeps the models within margin (0: "
+          "never prune)", low=0),
+    Param("margin", float, 20.0, "nats of evidence within the best model that a pruned bank keeps", low=0,
+          low_open=True),
+    Param("reset_after", int, 4, "coasted arrivals in a row after which the arrival variance is at least PRI^2/12",
+          low=1),
+    Param("birth", float, 10.0, "blind mode: the cost of a new track's first pulse (nats)"),
+    Param("pri_range", float, 100.0, "blind mode: max/min PRI of the log-uniform prior on a new track's first "
+          "interval", low=1, low_open=True),
+)
+
+
 class PathSearch:
     """The hypothesis search shared by `agile-kf` and `renewal-ml` (see the module doc).
 
@@ -155,34 +175,18 @@ class PathSearch:
     more arrivals than this in a row gets an arrival variance of at least PRI^2 / 12 (dokf's dropout
     reset), so a source that stops and restarts, or starts late, is acquired again.  Blind mode (where
     `blind_ok`): birth: the cost of a new track's first pulse (nats); pri_range: max/min PRI of the
-    log-uniform prior on a new track's first interval."""
+    log-uniform prior on a new track's first interval.  Declared: `PARAMS`."""
 
+    PARAMS = PARAMS
     blind_ok = False
 
     def __init__(self, beam: int = 1, lag: int = 0, gate: float = 5.0, switch: float = 0.01, bank: str = "priors",
                  identify: int = 100, margin: float = 20.0, reset_after: int = 4, birth: float = 10.0,
                  pri_range: float = 100.0):
-        if not isinstance(beam, int) or isinstance(beam, bool) or not 1 <= beam <= 4096:
-            raise ValueError(f"beam={beam!r} must be an integer in [1, 4096]")
-        if not isinstance(lag, int) or isinstance(lag, bool) or not 0 <= lag <= 256:
-            raise ValueError(f"lag={lag!r} must be an integer in [0, 256]")
-        if not gate > 0:
-            raise ValueError(f"gate={gate!r} must be > 0")
-        if not 0 <= switch < 1:
-            raise ValueError(f"switch={switch!r} must be in [0, 1)")
-        if bank not in ("priors", "default"):
-            raise ValueError(f"bank={bank!r} must be 'priors' or 'default'")
-        if not isinstance(identify, int) or isinstance(identify, bool) or identify < 0:
-            raise ValueError(f"identify={identify!r} must be an integer >= 0 (0: never prune the bank)")
-        if not margin > 0:
-            raise ValueError(f"margin={margin!r} must be > 0")
+        PARAMS.check(locals())
         self.beam, self.lag, self.gate, self.switch, self.bank_mode = beam, lag, float(gate), float(switch), bank
         self.base_beam, self.jump_beam = beam, None  # jump_beam: per random-level source and one more
-        if not isinstance(reset_after, int) or isinstance(reset_after, bool) or reset_after < 1:
-            raise ValueError(f"reset_after={reset_after!r} must be an integer >= 1")
         self.identify, self.margin, self.reset_after = identify, float(margin), reset_after
-        if not pri_range > 1:
-            raise ValueError(f"pri_range={pri_range!r} must be > 1")
         self.birth, self.pri_range = float(birth), float(pri_range)
 
     # ---- setup ---------------------------------------------------------------------------------
@@ -529,6 +533,8 @@ class PathSearch:
 class AgileKF(PathSearch):
     """`agile-kf`: the model-bank tracker with MAP decisions (beam 1, lag 0)."""
 
+    PARAMS = PARAMS.only("gate", "switch", "bank", "identify", "margin", "reset_after")
+
     def __init__(self, gate: float = 5.0, switch: float = 0.01, bank: str = "priors", identify: int = 100,
                  margin: float = 20.0, reset_after: int = 4):
         super().__init__(beam=1, lag=0, gate=gate, switch=switch, bank=bank, identify=identify, margin=margin,
@@ -543,6 +549,9 @@ class RenewalML(PathSearch):
     phase, say) the hypothesis giving that train its own pulses can trail by several nats for tens of
     pulses, and each random-level train adds such rivals."""
 
+    PARAMS = ParamSet((dataclasses.replace(PARAMS["beam"], default=None, optional=True, meaning="hypotheses "
+                                           "kept (none: 64, or 64 times 1 + the random-level staggers)"),)
+                      + PARAMS.params[1:]).changed(lag=16)
     blind_ok = True
     # on the random-level test files a wobulated train was lost to one random-level train at a beam of
     # 64 (kept at 128) and to two at 128 (kept at 256)

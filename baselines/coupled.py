@@ -39,7 +39,9 @@ import math
 
 import numpy as np
 
+from baselines.ekf import PARAMS as EKF_PARAMS
 from baselines.ekf import TWO_PI, SampledBank
+from deint_env.params import Param, ParamSet
 
 
 class EKFCoupled(SampledBank):
@@ -50,17 +52,17 @@ class EKFCoupled(SampledBank):
     """
 
     name = "ekf-coupled"
+    PARAMS = ParamSet(EKF_PARAMS.params[:-1] + (
+        Param("mu", float, 1.0, "the learning rate of LP (12)", low=0),
+        Param("asym", float, 0.2, "the asymmetry of the rates: mu_ij = mu (1 +- asym)", low=0, high=1, high_open=True),
+        Param("c0", float, 0.0, "the initial cell weights", low=0, high=1),
+        EKF_PARAMS["seed"]))
 
     def __init__(self, n_filters: int = 16, oversample: float = 10.0, ts: float | None = None,
                  r: float | None = None, prf_std: float = 0.1, label_scale: str = "time",
                  mu: float = 1.0, asym: float = 0.2, c0: float = 0.0, seed: int | None = None):
         super().__init__(n_filters, oversample, ts, r, prf_std, label_scale, seed)
-        if not mu >= 0:
-            raise ValueError(f"mu={mu!r} must be >= 0")
-        if not 0 <= asym < 1:
-            raise ValueError(f"asym={asym!r} must be in [0, 1)")
-        if not 0 <= c0 <= 1:
-            raise ValueError(f"c0={c0!r} must be in [0, 1]")
+        self.PARAMS.check(locals())
         self.mu, self.asym, self.c0 = float(mu), float(asym), float(c0)
 
     def _init_filters(self, f0: np.ndarray, u0: np.ndarray, u_var: np.ndarray) -> None:

@@ -57,6 +57,7 @@ import numpy as np
 
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable
+from deint_env.params import SEED, Param, declare
 from deint_env.policies import policy_rng
 
 TWO_PI = 2.0 * math.pi
@@ -103,6 +104,21 @@ def default_r(priors: Priors) -> float:
 # ---------------------------------------------------------------------------------------------------
 # the sampled-count policy frame shared by `ekf-bank` and `ekf-coupled`
 # ---------------------------------------------------------------------------------------------------
+PARAMS = declare(
+    Param("n_filters", int, 16, "K: filters in the bank (random phase initialisations)", low=1, high=4096),
+    Param("oversample", float, 10.0, "the least samples per shortest prior period (Ts = that period / oversample)",
+          low=2),
+    Param("ts", float, None, "the sample period (none: from oversample)", low=0, low_open=True, optional=True),
+    Param("r", float, None, "the measurement noise R (none: 10, or 20 for jitter >= 40 % of the shortest period)",
+          low=0, low_open=True, optional=True),
+    Param("prf_std", float, 0.1, "the relative PRF std of P0 (CM00: 0.1)", low=0, high=1, low_open=True,
+          high_open=True),
+    Param("label_scale", str, "time", "labels from the predicted arrivals' distance in time or in periods",
+          choices=("period", "time")),
+    SEED,
+)
+
+
 class SampledBank:
     """Clock, bank initialisation, labelling and estimates of a bank of count-signal filters.
 
@@ -116,18 +132,7 @@ class SampledBank:
 
     def __init__(self, n_filters: int, oversample: float, ts: float | None, r: float | None,
                  prf_std: float, label_scale: str, seed: int | None):
-        if not isinstance(n_filters, int) or not 1 <= n_filters <= 4096:
-            raise ValueError(f"n_filters={n_filters!r} must be an integer in [1, 4096]")
-        if not oversample >= 2:
-            raise ValueError(f"oversample={oversample!r} must be >= 2 (samples per shortest prior period)")
-        if ts is not None and not ts > 0:
-            raise ValueError(f"ts={ts!r} must be > 0 (or None: from oversample)")
-        if r is not None and not r > 0:
-            raise ValueError(f"r={r!r} must be > 0 (or None: 10, or 20 for jitter >= 40 % of the shortest period)")
-        if not 0 < prf_std < 1:
-            raise ValueError(f"prf_std={prf_std!r} must be in (0, 1) (relative PRF std of P0)")
-        if label_scale not in ("period", "time"):
-            raise ValueError(f"label_scale={label_scale!r} must be 'period' or 'time'")
+        PARAMS.check(locals())
         self.n_filters, self.oversample, self.ts, self.r = n_filters, float(oversample), ts, r
         self.prf_std, self.label_scale, self.seed = float(prf_std), label_scale, seed
 
@@ -221,8 +226,10 @@ class EKFBank(SampledBank):
     (Ts = shortest prior period / oversample, rounded down to two significant digits; CM00 sampled
     at 100 kHz for PRFs up to ~8 kHz); `ts` the sample period (overrides `oversample`); `r` the
     measurement noise R (default 10, or 20 for jitter >= 40 % of the shortest prior period); `prf_std`
-    the relative PRF std of P0 (CM00: 0.1); `label_scale` "time" or "period"; `seed`.
+    the relative PRF std of P0 (CM00: 0.1); `label_scale` "time" or "period"; `seed`.  Declared: `PARAMS`.
     """
+
+    PARAMS = PARAMS
 
     name = "ekf-bank"
 

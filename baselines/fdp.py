@@ -74,16 +74,19 @@ so a source that stops, starts late or misses pulses is picked up where it is.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 
+from baselines.fdp_start import _START_GATE, initiate
+from baselines.jit_cache import guard
 from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
+from baselines.kalman_jit import kf_predict, kf_update
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
+from deint_env.errors import NotApplicable, check
+from deint_env.params import Param, ParamSet, declare
 
 # Node state: per hypothesis, per source, these fields (the block, then pulses assigned so far).
 PERIOD, TAU, P_TT, P_TX, P_XX, COUNT = range(6)
@@ -203,12 +206,8 @@ _JV, _ALPHA, _DRIFT, _IVAR, _GATE2, _LL, _SEQ = range(7)
 
 @njit(cache=True, nogil=True)
 def _predict(t, tau, ptt, ptx, pxx, par):
-    """`kalman.predict` ((2.8) and II-C-2's noises) on one block, the same operations in the same order."""
-    a = par[_ALPHA]
-    if a == 1.0:
-        drift = par[_DRIFT]
-        return t, tau + t, ptt + drift if drift else ptt, ptt + ptx, ptt + 2.0 * ptx + pxx + par[_IVAR]
-    return a * t, tau + t, a * a * ptt + par[_DRIFT], a * (ptt + ptx), ptt + 2.0 * ptx + pxx + par[_IVAR]
+    """`kalman.predict` ((2.8) and II-C-2's noises) on one block (`kf_predict`), the model's scalars from `par`."""
+    return kf_predict(t, tau, ptt, ptx, pxx, par[_ALPHA], par[_DRIFT], par[_IVAR])
 
 
 @njit(cache=True, nogil=True)
@@ -220,14 +219,8 @@ def _emit(node, i, y, par, no_predict):
         t, tau, ptt, ptx, pxx = _predict(t, tau, ptt, ptx, pxx, par)
     e = y - tau
     s = pxx + par[_JV]
-    inv_s = 1.0 / s
-    g = e * inv_s
-    r_inv_s = par[_JV] * inv_s
-    node[i, PERIOD] = t + ptx * g
-    node[i, TAU] = tau + pxx * g
-    node[i, P_TT] = ptt - ptx * ptx * inv_s
-    node[i, P_TX] = ptx * r_inv_s
-    node[i, P_XX] = pxx * r_inv_s
+    node[i, PERIOD], node[i, TAU], node[i, P_TT], node[i, P_TX], node[i, P_XX] = kf_update(t, tau, ptt, ptx, pxx, e,
+                                                                                          s, par[_JV])
     node[i, COUNT] += 1.0
     if par[_LL] != 0.0:
         return e * e / s + math.log(s)
@@ -485,178 +478,27 @@ def _decide(surv, r, started, ys, no_predict, par, level0, cost0, c, cost1):
     return _commit(surv, r, level0, c, cost1, par)
 
 
-# ---- robust start: look-ahead track initiation -----------------------------------------------------
-_START_GATE = 4.0  # a source's candidate first pulses: within this many deviations of its phase
-_START_BRANCH = 8  # pulses tried per arrival in a candidate's chain (the nearest in the gate)
-_START_MISS_FLOOR = 0.05  # a chain's miss probability floor: a missed arrival costs -log(0.05) = 3
-
-
-@njit(cache=True, nogil=True)
-def _chain(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jv, ivar, log_rho, miss_cost, taken, path):
-    """The least cost of a source's next `look` arrivals after it took pulse k (the filtered block t,
-    tau, ptt, ptx, pxx): a small tree search over the buffered pulses not `taken` by another source,
-    each arrival either a hit on one of the `_START_BRANCH` pulses nearest its prediction within the
-    gate, costing 0.5 (e^2/S + log 2 pi S) + log rho (the pulse's NLL under the source against the
-    density rho of all pulses), or a miss (`miss_cost`); arrivals beyond the buffer cost 0.  The best
-    chain's pulses (-1: a miss) go to `path`.  Depth first on an explicit stack (rows: t, tau, ptt,
-    ptx, pxx, steps, total, depth, pulse), branch and bound."""
-    newest = toa[n_seen - 1]
-    st = np.empty((look * (_START_BRANCH + 1) + 2, 9))
-    st[0, 0], st[0, 1], st[0, 2], st[0, 3], st[0, 4] = t, tau, ptt, ptx, pxx
-    st[0, 5], st[0, 6], st[0, 7], st[0, 8] = 1.0, 0.0, 0.0, k
-    trail = np.full(look + 1, -1, np.int64)  # the pulses of the chain being searched, by depth
-    path[:] = -1
-    least = min(0.5 * math.log(2.0 * math.pi * jv) + log_rho, 0.0)  # no arrival costs less (S >= R)
-    top, best = 1, np.inf
-    while top > 0:
-        top -= 1
-        t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
-        steps, total, depth = st[top, 5], st[top, 6], int(st[top, 7])
-        trail[depth] = int(st[top, 8])
-        # (2.8) `steps` times (the arrivals missed since the last hit, and this one)
-        p_tx = ptx + steps * ptt
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * ivar
-        s = p_xx + jv
-        pred = tau + steps * t
-        half = math.sqrt(gate2 * s)
-        if depth >= look or pred - half > newest:
-            if total < best:
-                best = total
-                path[:] = -1
-                path[:depth] = trail[1:depth + 1]
-            continue
-        if total + (look - depth) * least >= best:
-            continue
-        st[top, 5], st[top, 6], st[top, 7], st[top, 8] = steps + 1.0, total + miss_cost, depth + 1.0, -1.0
-        top += 1  # the miss
-        c = np.searchsorted(toa[:n_seen], pred)
-        left, right = c - 1, max(c, k + 1)
-        tried = 0
-        while tried < _START_BRANCH:  # the nearest free hits within the gate, outwards from pred
-            if right < n_seen and (left <= k or toa[right] - pred < pred - toa[left]):
-                j = right
-                right += 1
-            elif left > k:
-                j = left
-                left -= 1
-            else:
-                break
-            e = toa[j] - pred
-            if e * e > gate2 * s:
-                break
-            if taken[j]:
-                continue
-            tried += 1
-            g, r_s = e / s, jv / s
-            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s
-            st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
-            st[top, 6] = total + 0.5 * (e * e / s + math.log(2.0 * math.pi * s)) + log_rho
-            st[top, 7], st[top, 8] = depth + 1.0, j
-            top += 1
-    return best
-
-
-@njit(cache=True, nogil=True)
-def _claim(toa, n_seen, k, t, tau, ptt, ptx, pxx, path, gate2, jv, ivar, owner, src):
-    """Give source `src` (in `owner`) the pulses of its chosen chain: its first pulse k, the best chain's pulses
-    (`path`), then, with the KF it has built, the nearest free pulse within the gate of each later
-    arrival in the buffer (ending after 3 misses in a row: the track is lost, claim no more)."""
-    owner[k] = src
-    steps, misses, q = 1.0, 0, 0
-    while True:
-        p_tx = ptx + steps * ptt
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * ivar
-        s = p_xx + jv
-        pred = tau + steps * t
-        if pred - math.sqrt(gate2 * s) > toa[n_seen - 1] or misses >= 3:
-            return
-        j = -1
-        if q < path.size:
-            j = path[q]
-            q += 1
-        else:  # beyond the searched chain: the nearest free pulse in the gate
-            c = np.searchsorted(toa[:n_seen], pred)
-            for cand in (c - 1, c):
-                if k < cand < n_seen and owner[cand] < 0 and (toa[cand] - pred) ** 2 <= gate2 * s:
-                    if j < 0 or abs(toa[cand] - pred) < abs(toa[j] - pred):
-                        j = cand
-        if j < 0:
-            steps += 1.0
-            misses += 1
-            continue
-        e = toa[j] - pred
-        g, r_s = e / s, jv / s
-        t, tau, ptt, ptx, pxx = t + p_tx * g, pred + p_xx * g, ptt - p_tx * p_tx / s, p_tx * r_s, p_xx * r_s
-        owner[j] = src
-        steps, misses, k = 1.0, 0, j
-
-
-def initiate(toa: np.ndarray, priors: Priors, model: DLMModel, gate: float, look: int) -> Priors:
-    """Robust start (issue 10's track initiation): each source's first pulse chosen by look-ahead, so
-    that in a dense scene, where many first arrivals fall within each other's phase gates, no source
-    starts on a neighbour's pulse.  Sources are taken in order of increasing prior period (the most
-    arrivals to judge by first).  A source's candidates are the free pulses within `gate` deviations
-    of its prior phase; a candidate costs its NLL against the prior plus the best chain of the
-    source's next `look` arrivals after it (`_chain`); the least wins unless every arrival missed
-    costs less (then the source keeps its prior), and the winner's chain, followed through the
-    buffer, is the source's (`_claim`), so a later source neither starts on nor is judged by pulses
-    that an earlier one explains (a long period is otherwise matched by a harmonic of a short one).
-    Then two sources each of whose first pulses lies in the other's phase gate (close periods and
-    phases) swap them when that costs less for the pair (their chains judged on the pulses no other
-    source claimed): the greedy order alone gives the first of them its pick.
-    Returns the priors with the chosen phases known to the jitter: the FDP then starts every source
-    on its own pulse.  Sources with an unknown phase keep their priors."""
-    b = prior_block(priors)
-    jv, ivar, gate2 = model.jitter_var, model.interval_var, gate * gate
-    stated = priors.missing_prob if np.isfinite(priors.missing_prob) else 0.0
-    miss = -math.log(max(_START_MISS_FLOOR, stated))
-    log_rho = math.log(float(np.sum(1.0 / priors.period)))
-    owner = np.full(toa.size, -1, np.int64)  # the source whose chain holds each pulse
-    preds = {i: predict(b.take(slice(i, i + 1)), model) for i in range(priors.n_labels) if np.isfinite(priors.phase[i])}
-    gated = {i: (lambda e, s: e * e <= gate2 * s)(*innovation(pred, toa, model)) for i, pred in preds.items()}
-
-    def candidate(i: int, k: int, free: np.ndarray) -> tuple[float, Block, np.ndarray]:
-        """Source i starting on pulse k: its cost, its block after k, its best chain's pulses."""
-        e, s = innovation(preds[i], toa[k:k + 1], model)
-        blk = update(preds[i], e, s, model)
-        path = np.empty(look, np.int64)
-        cost = 0.5 * (e[0] ** 2 / s[0] + math.log(2.0 * math.pi * s[0])) + log_rho + _chain(
-            toa, toa.size, k, blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], look, gate2, jv,
-            ivar, log_rho, miss, ~free, path)
-        return cost, blk, path
-
-    def claim(i: int, k: int, blk: Block, path: np.ndarray) -> None:
-        _claim(toa, toa.size, k, blk.period[0], blk.tau[0], blk.p_tt[0], blk.p_tx[0], blk.p_xx[0], path, gate2, jv,
-               ivar, owner, i)
-
-    order = [int(i) for i in np.argsort(priors.period, kind="stable") if int(i) in preds]
-    pick: dict[int, int] = {}
-    for i in order:
-        free = owner < 0
-        best, chosen = (look + 1) * miss, None
-        for k in np.flatnonzero(gated[i] & free):
-            cost, blk, path = candidate(i, int(k), free)
-            if cost < best:
-                best, chosen = cost, (int(k), blk, path)
-        if chosen is not None:
-            pick[i] = chosen[0]
-            claim(i, *chosen)
-    for a, i in enumerate(order):  # pairwise swaps of first pulses
-        for j in order[a + 1:]:
-            if i not in pick or j not in pick or not (gated[i][pick[j]] and gated[j][pick[i]]):
-                continue
-            free = (owner < 0) | (owner == i) | (owner == j)
-            keep_i, keep_j = candidate(i, pick[i], free), candidate(j, pick[j], free)
-            swap_i, swap_j = candidate(i, pick[j], free), candidate(j, pick[i], free)
-            if swap_i[0] + swap_j[0] < keep_i[0] + keep_j[0]:
-                owner[(owner == i) | (owner == j)] = -1
-                pick[i], pick[j] = pick[j], pick[i]
-                claim(i, pick[i], *swap_i[1:])
-                claim(j, pick[j], *swap_j[1:])
-    phase, phase_std = priors.phase.copy(), priors.phase_std.copy()
-    for i, k in pick.items():
-        phase[i], phase_std[i] = toa[k], math.sqrt(jv)
-    return dataclasses.replace(priors, phase=phase, phase_std=phase_std)
+PARAMS = declare(
+    Param("lookahead", int, 3, "the look-ahead Delta: pulses seen before a label is final", low=1, high=30),
+    Param("accumulate", str, "lookahead", "the published (3.2) accumulation, or sequence",
+          choices=("lookahead", "sequence")),
+    Param("init", str, "phase", "the start: phase, or the literal mk94", choices=("phase", "mk94")),
+    Param("cost", str, "raw", "raw squared errors (2.18), or likelihood: e^2/S + log S", choices=("raw", "likelihood")),
+    Param("missing", bool, False, "VI-A: test for missing pulses"),
+    Param("supernumerary", bool, False, "VI-A: test for supernumerary pulses (lag + 1)"),
+    Param("spurious_penalty", float, 0.0, "VI-A: the cost of calling a pulse spurious", low=0),
+    Param("dropout", bool, False, "VI-C-3: coast through missed arrivals"),
+    Param("gate", float, 5.0, "VI-C-3: the coasting gate, in innovation standard deviations", low=0, low_open=True),
+    Param("reuse", bool, True, "numpy engine: keep the tree between pulses (the same labels)"),
+    Param("tree_gate", float, None, "only continuations predicting the pulse within this many deviations (none: "
+          "the full tree; needs engine=compiled)", low=0, low_open=True, optional=True),
+    Param("engine", str, "compiled", "compiled, or the batched-numpy reference numpy (the same labels)",
+          choices=("compiled", "numpy")),
+    Param("start", str, "prior", "prior, or lookahead: the robust start", choices=("prior", "lookahead")),
+    Param("start_look", int, 6, "arrivals the robust start looks ahead", low=1, high=100_000),
+    Param("start_lag", int, 2048, "pulses the robust start may wait (at least lookahead + 1; the lag with "
+          "start=lookahead)", low=2, high=100_000),
+)
 
 
 class FDP:
@@ -672,38 +514,25 @@ class FDP:
     sources affordable), `start` ("prior", or "lookahead": the robust start), `start_look` (arrivals
     the start looks ahead), `start_lag` (pulses the start may wait: the lag with start="lookahead").
     The lag is Delta, or Delta + 1 with `supernumerary`, or `start_lag` with the robust start.
-    For scale-v0's dense scenes: `fdp:tree_gate=4,start=lookahead`.
+    For scale-v0's dense scenes: `fdp:tree_gate=4,start=lookahead`.  Declared: `PARAMS`.
     """
+
+    PARAMS = PARAMS
 
     def __init__(self, lookahead: int = 3, accumulate: str = "lookahead", init: str = "phase", cost: str = "raw",
                  missing: bool = False, supernumerary: bool = False, spurious_penalty: float = 0.0,
                  dropout: bool = False, gate: float = 5.0, reuse: bool = True, tree_gate: float | None = None,
                  engine: str = "compiled", start: str = "prior", start_look: int = 6, start_lag: int = 2048):
-        if not isinstance(lookahead, int) or isinstance(lookahead, bool) or not 1 <= lookahead <= 30:
-            raise ValueError(f"lookahead={lookahead!r} must be an integer in [1, 30]")
-        for name, value, allowed in (("accumulate", accumulate, ("lookahead", "sequence")),
-                                     ("init", init, ("phase", "mk94")), ("cost", cost, ("raw", "likelihood")),
-                                     ("engine", engine, ("compiled", "numpy")),
-                                     ("start", start, ("prior", "lookahead"))):
-            if value not in allowed:
-                raise ValueError(f"{name}={value!r} must be one of {', '.join(allowed)}")
-        if not gate > 0:
-            raise ValueError(f"gate={gate!r} must be > 0")
-        if tree_gate is not None and not tree_gate > 0:
-            raise ValueError(f"tree_gate={tree_gate!r} must be > 0 (or None: the full tree)")
-        if tree_gate is not None and engine == "numpy":
-            raise ValueError("tree_gate needs engine=compiled (the numpy engine is the full tree)")
+        PARAMS.check(locals())
+        check(tree_gate is None or engine == "compiled", "tree_gate", tree_gate,
+              "none with engine=numpy (the numpy engine is the full tree)")
+        check(start_lag >= lookahead + 1, "start_lag", start_lag, f"at least lookahead + 1 = {lookahead + 1}")
         self.tree_gate = None if tree_gate is None else float(tree_gate)
-        if not spurious_penalty >= 0:
-            raise ValueError(f"spurious_penalty={spurious_penalty!r} must be >= 0")
         self.spurious_penalty = float(spurious_penalty)
         self.lookahead, self.accumulate, self.init, self.cost = lookahead, accumulate, init, cost
         self.missing, self.supernumerary, self.dropout, self.gate = bool(missing), bool(supernumerary), \
             bool(dropout), float(gate)
         self.engine = engine
-        for name, v, lo in (("start_look", start_look, 1), ("start_lag", start_lag, lookahead + 1)):
-            if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= 100_000:
-                raise ValueError(f"{name}={v!r} must be an integer in [{lo}, 100000]")
         self.start, self.start_look = start, start_look
         # the VI-A tests change the observation stream, which a kept tree cannot follow
         self.reuse = bool(reuse) and not (missing or supernumerary or dropout)
@@ -839,5 +668,10 @@ class FDPLikelihood(FDP):
     """`fdp-ll`: FDP whose costs weigh each error by its predicted spread, e^2 / S + log S (the
     Gaussian negative log-likelihood), instead of MK94's raw e^2.  Not in the paper."""
 
+    PARAMS = ParamSet(tuple(p for p in PARAMS if p.name != "cost"))
+
     def __init__(self, lookahead: int = 3, **kwargs: Any):
         super().__init__(lookahead=lookahead, cost="likelihood", **kwargs)
+
+
+guard(globals())

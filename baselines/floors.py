@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from deint_env.episode import Priors
+from deint_env.params import SEED, Param, declare
 from deint_env.policies import policy_rng
 
 
@@ -15,7 +16,10 @@ class RandomPolicy:
 
     lag = 0
 
+    PARAMS = declare(SEED)
+
     def __init__(self, seed: int | None = None):
+        self.PARAMS.check(locals())
         self.seed = seed
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -34,9 +38,11 @@ class NearestPrior:
 
     lag = 0
 
+    PARAMS = declare(Param("gate", float, 4.0, "spurious beyond this many prior deviations from every prediction",
+                           low=0, low_open=True))
+
     def __init__(self, gate: float = 4.0):
-        if not gate > 0:
-            raise ValueError("gate must be > 0")
+        self.PARAMS.check(locals())
         self.gate = gate
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:

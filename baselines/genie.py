@@ -7,12 +7,14 @@ from typing import Any
 
 from deint_env.episode import Priors
 from deint_env.errors import DeintError
+from deint_env.params import declare
 from deint_env.oracle import episode_genie_labels, priors_genie_labels
 
 
 class Genie:
     """The oracle ceiling: MAP labels from the true schedule (or true constant-PRI priors)."""
 
+    PARAMS = declare()
     lag = 0
     oracle = True
 

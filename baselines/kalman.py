@@ -17,6 +17,10 @@ at its phase phi with variance var phi and no correlation with T.  `predict` is 
 MK94 II-C-2's stochastic sources: T <- alpha T + v_T (drift) and an interval noise on tau
 (cumulative jitter); `update` is (2.15) for the block's source.
 
+The compiled trackers (baselines/mht, baselines/fdp) run the same filter one block at a time in numba:
+baselines/kalman_jit.py is their only copy of it (a module of its own, so that a policy without kernels
+does not load numba), held to `predict` and `update` by tests/test_kalman_compiled.py.
+
 Pulse amplitudes (2.11) are one more independent scalar per source (`AmplitudeBlock`).  The RLS form
 (2.12)-(2.17) is `RLSBlock`: theta = (T, phi) with regressor (n, 1) for the source's n-th pulse.
 """

@@ -82,6 +82,8 @@ import numpy as np
 from deint_env.receiver import is_spurious
 from baselines.kalman import Block, DLMModel, overdue, phase_estimate, predict, prior_block, update
 from deint_env.episode import Priors
+from deint_env.errors import check
+from deint_env.params import SEED, Param, declare
 from deint_env.policies import policy_rng
 
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
@@ -122,28 +124,34 @@ class _TrackState(NamedTuple):
     young: bool
 
 
+PARAMS = declare(
+    Param("label", str, "sample", "sample: draw the label from the teacher's probabilities; map: the likeliest",
+          choices=LABELS),
+    SEED,
+    Param("coast", bool, False, "coast through missed arrivals (none: on, with reset_after=4, unless the priors "
+          "state a clean channel)", optional=True),
+    Param("gate", float, 5.0, "the overdue test's width, in predicted standard deviations", low=0, low_open=True),
+    Param("reset_after", int, None, "coasted arrivals in a row after which a track's arrival variance is reset "
+          "(dropout; none: never, or 4 with coast=none)", low=1, optional=True),
+    Param("rates", str, "priors", "priors: the priors' miss/spurious rates (unknown ones estimated); estimate: both "
+          "estimated online", choices=RATES),
+)
+
+
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
     (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
     priors state a clean channel), `gate`, `reset_after`, `rates`: see the module doc.  `seed`: the
-    policy's own seed (default: the runner's policy_seed)."""
+    policy's own seed (default: the runner's policy_seed).  Declared: `PARAMS` (and each subclass's)."""
 
     lag = 0
 
     def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
                  gate: float = 5.0, reset_after: int | None = None, rates: str = "priors"):
-        if teacher not in TEACHERS:
-            raise ValueError(f"teacher={teacher!r} must be one of {', '.join(TEACHERS)}")
-        if label not in LABELS:
-            raise ValueError(f"label={label!r} must be one of {', '.join(LABELS)}")
-        if coast and teacher == "prior":
-            raise ValueError("coast needs a posterior: the a-priori teacher's sources are always overdue")
-        if not gate > 0:
-            raise ValueError(f"gate={gate!r} must be > 0")
-        if reset_after is not None and (not isinstance(reset_after, int) or reset_after < 1):
-            raise ValueError(f"reset_after={reset_after!r} must be None or an integer >= 1")
-        if rates not in RATES:
-            raise ValueError(f"rates={rates!r} must be one of {', '.join(RATES)}")
+        check(teacher in TEACHERS, "teacher", teacher, f"one of {', '.join(TEACHERS)}")
+        PARAMS.check(locals())
+        check(not (coast and teacher == "prior"), "coast", coast,
+              "false with the a-priori teacher (coasting needs a posterior: its sources are always overdue)")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
         self.gate = float(gate)
         self._coast_param, self._reset_param = coast, reset_after
@@ -404,12 +412,16 @@ class ProbabilisticTeacher:
 class PTPrior(ProbabilisticTeacher):
     """`pt-prior`: MK94 IV-2, the source drawn from the known a-priori probabilities pi."""
 
+    PARAMS = PARAMS.only("label", "seed")
+
     def __init__(self, label: str = "sample", seed: int | None = None):
         super().__init__("prior", label, seed)
 
 
 class PTPost(ProbabilisticTeacher):
     """`pt-post`: MK94 IV, the source drawn from the a-posteriori probabilities (4.1)-(4.3)."""
+
+    PARAMS = PARAMS.changed(coast=None)
 
     def __init__(self, label: str = "sample", seed: int | None = None, coast: bool | None = None, gate: float = 5.0,
                  reset_after: int | None = None, rates: str = "priors"):
@@ -419,6 +431,8 @@ class PTPost(ProbabilisticTeacher):
 class DOKFTracker(ProbabilisticTeacher):
     """`dokf`: the PT's tracker taught by its own MAP decisions, with DM89's Theorem 1 spurious test,
     coasting through missed arrivals and dropout resets (deterministic: it draws nothing)."""
+
+    PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates").changed(coast=True, reset_after=4)
 
     def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors"):
         super().__init__("decision", "map", None, coast, gate, reset_after, rates)

@@ -22,6 +22,7 @@ import numpy as np
 from baselines.windowed import MAX_WINDOW, WindowedPolicy
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
+from deint_env.params import REQUIRED, Param, declare
 
 
 def load_model(spec: str) -> Any:
@@ -147,15 +148,19 @@ class TDCDeinterleaver(WindowedPolicy):
     notion of prior tracks.
     """
 
+    PARAMS = declare(
+        Param("model", str, REQUIRED, "the Deinterleaver to run: module:Name (runs that code)"),
+        Param("window", int, 1000, "pulses per model call (the lag is window - 1)", low=1, high=MAX_WINDOW),
+        Param("batched", bool, None, "call the model on a batch of windows (none: try both)", optional=True),
+        Param("overflow", str, "spurious", "more clusters than labels: the extra ones spurious, or raise",
+              choices=("spurious", "raise")),
+        Param("noise_label", int, None, "the id the model gives noise pulses (none: the model's own, if it states one)",
+              optional=True),
+    )
+
     def __init__(self, model: Any, window: int = 1000, batched: bool | None = None, overflow: str = "spurious",
                  noise_label: int | None = None):
-        if isinstance(window, bool) or not isinstance(window, int) or not 1 <= window <= MAX_WINDOW:
-            raise ValueError(f"window={window!r} is invalid: an integer in [1, {MAX_WINDOW}] (pulses per model "
-                             f"call; the lag, window - 1, is at most 10000)")
-        if overflow not in ("spurious", "raise"):
-            raise ValueError(f"overflow={overflow!r} is invalid: spurious or raise")
-        if batched not in (None, True, False):
-            raise ValueError(f"batched={batched!r} is invalid: true, false or none (try both)")
+        self.PARAMS.only("window", "batched", "overflow", "noise_label").check(locals())  # model: a name or an object
         self.model = load_model(model) if isinstance(model, str) else model
         if not callable(self.model):
             raise ValueError("model must be callable (a TDC Deinterleaver)")

@@ -18,6 +18,7 @@ import numpy as np
 from baselines.kalman import Block, DLMModel, innovation, predict, prior_block, update
 from deint_env.episode import Priors
 from deint_env.errors import DeintError, NotApplicable
+from deint_env.params import Param, declare
 
 _MIN_JITTER_REL = 1e-6
 
@@ -52,9 +53,12 @@ class TreeSearch:
     """Policy `tree`: waits for the whole (short) train, then labels it with the optimal sequence.
     Its lag is `max_pulses - 1`, so it refuses longer episodes."""
 
+    PARAMS = declare(Param("max_pulses", int, 20, "the longest train it waits for (the lag is max_pulses - 1)", low=1,
+                           high=200),
+                     Param("max_nodes", int, 2_000_000, "the most tree nodes the search expands", low=1))
+
     def __init__(self, max_pulses: int = 20, max_nodes: int = 2_000_000):
-        if not isinstance(max_pulses, int) or not 1 <= max_pulses <= 200:
-            raise ValueError(f"max_pulses={max_pulses!r} must be an integer in [1, 200]")
+        self.PARAMS.check(locals())
         self.max_pulses, self.max_nodes = max_pulses, max_nodes
         self.lag = max_pulses - 1
 

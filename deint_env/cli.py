@@ -4,10 +4,11 @@
     deint label PULSES.csv --policy SPEC [--priors PRIORS.json | --n-sources N --prior-periods a,b,...] -o LABELS.csv
     deint score LABELS.csv --truth PULSES.csv [--json]
     deint run --policy SPEC [--policy SPEC ...] (--suite SUITE | --scenario NAME) [--out RESULTS.jsonl]
-              [--workers N] [--executor local|ray [--address ADDR]]
+              [--workers N] [--executor local|ray [--address ADDR]] [--split test|validation|train]
     deint suites [SUITE]
-    deint policies
-    deint leaderboard (--suite SUITE | --all) [--policies A,B,...] [--workers N]
+    deint policies [NAME]
+    deint tune POLICY --suite SUITE [--division online|low-latency|offline] [--budget N]
+    deint leaderboard (--suite SUITE | --all) [--policies A,B,...] [--workers N] [--time]
     deint leaderboard submit FILE --suite SUITE --name NAME
     deint leaderboard export --suite SUITE --policy SPEC -o FILE
     deint tdc convert INPUT OUTPUT [--float64]
@@ -311,7 +312,7 @@ def cmd_label(args: argparse.Namespace) -> int:
         else:
             episode = formats.read_pulses(args.pulses, priors)
         t0 = time.perf_counter()
-        result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), clustering=False)
+        result = play(policy, episode, policy_seed=args.seed, oracle=is_oracle(args.policy), scored=False)
         seconds = time.perf_counter() - t0
     if tdc.is_tdc_path(args.output):  # a TDC file: the input's rows with the predicted labels
         tdc.write_labels(args.output, train or episode, result.labels, priors.n_labels, f"labels of {args.policy}")
@@ -573,13 +574,26 @@ def _add_policies(sub) -> None:
     p = sub.add_parser("policies", help="list the registered policies",
                        description="Every registered policy with its kind (reference, learned, oracle: sees the "
                                    "truth, adapter: runs a model you name), the modes it plays, its version and "
-                                   "limits; * marks the leaderboards' default set.")
+                                   "limits; * marks the leaderboards' default set.  With NAME: that policy's "
+                                   "description and its parameters (type, default, range or choices, meaning).")
+    p.add_argument("name", nargs="?", metavar="NAME", help="one policy: show its parameters")
     p.set_defaults(func=cmd_policies)
 
 
 def cmd_policies(args: argparse.Namespace) -> int:
-    from deint_env.policies import default_policies, list_policies
+    from deint_env.policies import default_policies, list_policies, policy_info
 
+    if args.name is not None:
+        info = policy_info(args.name)
+        declared = info.declaration()
+        print(f"{info.name} ({info.kind}, {'+'.join(info.modes)}, version {info.version}): {info.description}")
+        if declared is None:
+            print("(no declared parameters)")
+        elif not declared.params:
+            print("no parameters")
+        else:
+            print(_table(["parameter", "type", "default", "range", "meaning"], [list(r) for r in declared.table()]))
+        return 0
     default = set(default_policies())
 
     def limits(p) -> str:
@@ -678,6 +692,45 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------------
+# deint tune
+# ---------------------------------------------------------------------------------------------------
+def _add_tune(sub) -> None:
+    p = sub.add_parser("tune", help="tune a reference policy's parameters on validation seeds",
+                       description="Choose a reference policy's parameters by successive halving on the validation "
+                                   "seeds of a suite (never a test seed) within a budget of episode plays, and write "
+                                   "the preset that POLICY-tuned:suite=SUITE plays (deint_env/tune.py).  Plays are "
+                                   "kept in the work directory: rerun to resume.")
+    p.add_argument("policy", help="the policy to tune (one with a search space: mht, fdp, dokf, renewal-ml, cdif)")
+    p.add_argument("--suite", required=True, help="the suite whose validation seeds choose")
+    p.add_argument("--division", default="offline", help="online, low-latency or offline (default): the lag bound")
+    p.add_argument("--budget", type=int, default=2000, help="episode plays the search may spend (default 2000)")
+    p.add_argument("--configs", type=int, default=27, help="candidate configurations (default 27)")
+    p.add_argument("--eta", type=int, default=3, help="keep 1/eta per rung, eta times the seeds (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the candidates drawn from the space")
+    p.add_argument("--scenarios", default="", metavar="A,B,...", help="only these scenarios of the suite")
+    p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--out", metavar="PRESET.json",
+                   help="the preset file (default baselines/presets/POLICY/SUITE.DIVISION.json)")
+    p.add_argument("--work", metavar="DIR", help="the plays' results (default runs/tune/POLICY-SUITE-DIVISION)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_tune)
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from deint_env.tune import tune
+
+    result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
+                  eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
+                  scenarios=tuple(s for s in args.scenarios.split(",") if s), progress=not args.no_progress,
+                  log=_status)
+    preset = result.preset
+    print(json.dumps({"params": preset["params"], "validation": preset["validation"]}))
+    _status(f"deint: chose {preset['spec']} (validation mean {preset['validation']['mean_score']:.4f} over "
+            f"{preset['validation']['episodes']} episodes) -> {result.path}")
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------
 # deint dataset
 # ---------------------------------------------------------------------------------------------------
 def _add_dataset(sub) -> None:
@@ -753,8 +806,10 @@ def _add_leaderboard(sub) -> None:
                     "(per episode; an interrupted run resumes from it), leaderboard.json and .csv (normalised "
                     "score IQM and mean with 95% stratified-bootstrap intervals, accuracy, P_e, V-measure, ARI, "
                     "per-tag scores, period error vs CRLB, us/pulse, lag, coverage), README.md, index.html and "
-                    "PNG plots.  Default policies: every reference policy (with --all, the ones each leaderboard "
-                    "records).  `deint leaderboard submit` scores "
+                    "PNG plots; rows ranked within latency divisions (online lag <= 3, low-latency <= 64, offline).  "
+                    "Default policies: every shipped policy in every division it reaches, the suite's tuned presets "
+                    "and each learned entry's ablation (with --all, the ones each leaderboard records).  "
+                    "--time: one timing run (timings.json) for the speed columns.  `deint leaderboard submit` scores "
                     "labels made elsewhere; `deint leaderboard export` writes a policy's labels in that format.")
     which = p.add_mutually_exclusive_group()
     which.add_argument("--suite", help="a suite name (see `deint suites`)")
@@ -774,6 +829,9 @@ def _add_leaderboard(sub) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="where episodes run: the local process pool (default) or a Ray cluster")
     p.add_argument("--address", help="the Ray cluster to join (with --executor ray; default: a private one)")
+    p.add_argument("--time", action="store_true",
+                   help="then time every entry in one process, one after another (timings.json: median us/pulse "
+                        "and the ratio to fdp; the board's only speed columns); run it on an idle machine")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_leaderboard)
     actions = p.add_subparsers(dest="action", metavar="ACTION")
@@ -838,7 +896,7 @@ def _check_reps(reps: int) -> None:
 
 
 def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import Scope, board_policies, build, default_policies, published_suites
+    from deint_env.leaderboard import Scope, board_entries, board_policies, build, published_suites, timing, write
 
     if not args.all and args.suite is None:
         raise DeintError("name a suite: --suite SUITE, or --all for the published leaderboards")
@@ -855,12 +913,16 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
             folder = Path(args.root) / suite
             runs.append((Scope.of_folder(folder, suite), named or board_policies(folder)))
     else:
-        runs = [(_scope(args.suite, args), named or default_policies())]
+        runs = [(_scope(args.suite, args), named or board_entries(args.suite))]
     for scope, policies in runs:
         if args.all:
             _status(f"deint: {scope.suite}: {len(policies)} policies: {' '.join(policies)}")
         folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
                               reps=args.reps, executor=args.executor, address=args.address)
+        if args.time:
+            timing.run(folder, scope.suite, [r["policy"] for r in board["rows"] if not r["submitted"]],
+                       scope.scenarios, progress=not args.no_progress)
+            board = write(folder, scope, reps=args.reps)
         _leaderboard_report(board, folder)
     return 0
 
@@ -897,8 +959,8 @@ def cmd_leaderboard_export(args: argparse.Namespace) -> int:
 # One parser builder per subcommand, in help order: a builder adds its subparser and sets `func` to a
 # `cmd_*(args) -> int`.
 SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
-                                            _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_dataset,
-                                            _add_tdc]
+                                            _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_tune,
+                                            _add_dataset, _add_tdc]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -84,6 +84,15 @@ class PolicyInfo:
     # learned policies: the parameters that switch the learned part off ("network=off"), played beside
     # the policy on every board so that its row can show what the learning adds (its learned share)
     ablation: str | None = None
+    # (division, parameters) for the divisions its defaults' lag does not reach, e.g. mht's
+    # ("online", "lag=3,nscan=3"): boards play each as a row of its own (deint_env.divisions)
+    division_params: tuple[tuple[str, str], ...] = ()
+    # "module:function" listing the specs of this policy a suite's board plays, given the suite name
+    # (a tuned entry: one per preset made for that suite); imported only when a board is built
+    variants: str | None = None
+    # the declared parameters (deint_env.params.ParamSet), or "module:attribute" naming them; None: the
+    # factory's own `PARAMS` attribute, if it has one (`declaration()`)
+    params: Any = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -112,6 +121,16 @@ class PolicyInfo:
         except ImportError as e:
             hint = f"; install it with: pip install 'deint-bench[{self.extra}]'" if self.extra else ""
             raise DeintError(f"policy {self.name!r} needs {e.name or 'a missing module'}{hint}") from None
+
+    def declaration(self) -> Any:
+        """The policy's declared parameters (a `deint_env.params.ParamSet`), or None; imports the factory
+        (or the module `params` names)."""
+        if self.params is None:
+            return getattr(self.load(), "PARAMS", None)
+        if isinstance(self.params, str):
+            module, attr = self.params.split(":")
+            return getattr(importlib.import_module(module), attr)
+        return self.params
 
 
 _REGISTRY: dict[str, PolicyInfo] = {}
@@ -177,10 +196,28 @@ def policy_info(name: str) -> PolicyInfo:
 
 
 def default_policies() -> list[str]:
-    """The policies leaderboards and benchmarks run by default: every registered one except those that
-    need a parameter named (an adapter's model, a checkpoint) and those whose defaults have a pulse
-    limit (tree: short trains only)."""
-    return [p.name for p in list_policies() if not p.required and p.limits.max_pulses is None]
+    """The policies leaderboards and benchmarks run by default: every one deint-bench ships (a third
+    party's installed policies join only when named) except those that need a parameter named (an
+    adapter's model, a checkpoint) and those whose defaults have a pulse limit (tree: short trains only)."""
+    return [p.name for p in list_policies() if p.provider in BUILTIN_PROVIDERS and not p.required
+            and p.limits.max_pulses is None]
+
+
+def tuned_specs(suite: str) -> list[str]:
+    """The specs shipped policies list for `suite`'s board (`PolicyInfo.variants`: the tuned presets)."""
+    out: list[str] = []
+    for info in list_policies():
+        if info.variants and info.provider in BUILTIN_PROVIDERS:
+            module, attr = info.variants.split(":")
+            out += [s for s in getattr(importlib.import_module(module), attr)(suite)
+                    if parse_policy_spec(s)[0] == info.name]
+    return list(dict.fromkeys(out))
+
+
+def division_specs(name: str) -> list[str]:
+    """The specs of `name` in the other divisions (`PolicyInfo.division_params`), canonical."""
+    info = policy_info(name)
+    return [canonical_spec(*parse_policy_spec(f"{name}:{params}")) for _, params in info.division_params]
 
 
 def _parse_value(text: str, where: str) -> Any:
@@ -235,8 +272,18 @@ def make_policy(spec: str) -> Policy:
         raise DeintError(f"policy {name!r} needs {', '.join(f'{k}=...' for k in missing)}: write "
                          f"{name}:{','.join(f'{k}=VALUE' for k in info.required)}")
     factory = info.load()
+    declared = info.declaration()
     params = inspect.signature(factory).parameters
-    if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+    if declared is not None:  # the declaration names and checks every parameter (deint_env.params)
+        for key in kwargs:
+            if key not in declared:
+                raise DeintError(f"policy {name!r} has no parameter {key!r}; its parameters: "
+                                 f"{', '.join(declared.names) or 'none'}")
+        try:
+            declared.validate(kwargs)
+        except DeintError as e:
+            raise DeintError(f"policy {spec!r}: {e}") from None
+    elif not any(p.kind is p.VAR_KEYWORD for p in params.values()):
         allowed = [k for k, p in params.items() if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)]
         for key in kwargs:
             if key not in allowed:
@@ -255,10 +302,12 @@ def make_policy(spec: str) -> Policy:
 
 
 def _check_modes(policy: Policy, info: PolicyInfo) -> None:
-    """The one check of the modes a policy plays, from the registry: its `reset` refuses a scenario of
-    another mode as not applicable, before the policy sees it.  (An instance attribute wraps the
-    bound method, so the policy stays itself: its type, attributes and `act` are untouched.)"""
-    if set(info.modes) == set(MODES):
+    """The one check of the modes a policy plays and of its track limit (`Limits.max_sources`), from the
+    registry: its `reset` refuses a scenario of another mode, or with more prior tracks (a blind one's
+    label budget) than it handles, as not applicable, before the policy sees it.  (An instance attribute
+    wraps the bound method, so the policy stays itself: its type, attributes and `act` are untouched.)"""
+    limit = info.limits.max_sources
+    if set(info.modes) == set(MODES) and limit is None:
         return
     # the wrapper holds the bound method weakly: a strong one would make a reference cycle (policy ->
     # wrapper -> method -> policy), and the policy, its work arrays with it, would outlive its episode until
@@ -272,6 +321,10 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
             why = ("needs priors: it plays anchored scenarios only, and blind scenarios have none" if mode == "blind"
                    else "plays blind scenarios only: it clusters pulses and has no prior tracks")
             raise NotApplicable(f"policy {info.name!r} {why}")
+        if limit is not None and priors.n_labels > limit:
+            what = "a label budget" if priors.blind else "prior tracks"
+            raise NotApplicable(f"policy {info.name!r} handles at most {limit} tracks; this episode has "
+                                f"{priors.n_labels} {what}")
         method()(priors, episode_info)
 
     policy.reset = checked_reset  # type: ignore[method-assign]

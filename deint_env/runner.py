@@ -28,7 +28,7 @@ import signal
 import socket
 import sys
 import time
-from collections import deque
+from collections import Counter, deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
@@ -47,7 +47,7 @@ from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records, results_lock
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
-from deint_env.stats import have_rliable
+from deint_env.stats import MIN_SEEDS, have_rliable
 from deint_env.suites import SPLITS, find_entry, list_suites, load_suite
 from deint_env.tables import entry_table
 
@@ -74,9 +74,10 @@ def check_label(action: Any, n_labels: int) -> None:
 
 
 def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool = False,
-         clustering: bool = True) -> PlayResult:
-    """Run `policy` over `episode` through the env; the policy sees observations and public priors."""
-    env = DeinterleaveEnv.for_episode(episode, lag=policy.lag, clustering_metrics=clustering)
+         clustering: bool = True, scored: bool = True) -> PlayResult:
+    """Run `policy` over `episode` through the env; the policy sees observations and public priors.
+    `scored=False`: labels only (`PlayResult.metrics` empty)."""
+    env = DeinterleaveEnv.for_episode(episode, lag=policy.lag, clustering_metrics=clustering, scored=scored)
     obs, info = env.load_episode(episode)
     info["policy_seed"] = int(policy_seed)
     if oracle:
@@ -100,7 +101,7 @@ def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool
     if hasattr(policy, "estimates"):
         est = policy.estimates()
         estimates = {k: np.asarray(v, dtype=np.float64) for k, v in est.items()} if est is not None else None
-    return PlayResult(env.labels.copy(), env.metrics(), estimates, spent)
+    return PlayResult(env.labels.copy(), env.metrics() if scored else {}, estimates, spent)
 
 
 def accuracy_of(labels: np.ndarray, episode: Episode) -> float:
@@ -469,15 +470,19 @@ def summarise(records: list[EpisodeRecord], reps: int = 2000, seed: int = 0) -> 
     """Per policy, the row `deint_env.aggregate.aggregate_entry` makes (the leaderboard's own path):
     counts, coverage and faults, every metric of the metric table, and the normalised score's IQM and
     mean with stratified-bootstrap 95 % intervals (strata = scenarios; the intervals need rliable and
-    are NaN without it).  Records of one scenario are taken in seed order."""
+    at least `MIN_SEEDS` episodes of every scenario, and are NaN otherwise: `format_table` says why).
+    Records of one scenario are taken in seed order."""
     by_policy: dict[str, list[EpisodeRecord]] = {}
     for r in sorted(records, key=lambda r: (r.policy, r.scenario, r.seed)):
         by_policy.setdefault(r.policy, []).append(r)
-    intervals = have_rliable()
     rows = []
     for policy, recs in by_policy.items():
         groups = {"all": sorted({r.scenario for r in recs})}
-        rows.append(aggregate_entry(recs, groups, reps=reps, seed=seed, intervals=intervals).row)
+        seeds = min(Counter(r.scenario for r in recs).values())
+        intervals = have_rliable() and seeds >= MIN_SEEDS
+        row = aggregate_entry(recs, groups, reps=reps, seed=seed, intervals=intervals).row
+        row["seeds_per_scenario"] = seeds
+        rows.append(row)
     return rows
 
 
@@ -486,4 +491,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     out = entry_table(rows, summary=True)
     if rows and not have_rliable():
         out += "\n(no intervals: they need rliable: pip install 'deint-bench[leaderboard]')"
+    elif rows and min(r["seeds_per_scenario"] for r in rows) < MIN_SEEDS:
+        out += (f"\n(no intervals: {min(r['seeds_per_scenario'] for r in rows)} seed(s) per scenario; intervals "
+                f"need at least {MIN_SEEDS}: a bootstrap over fewer would print zero-width intervals)")
     return out

@@ -28,6 +28,8 @@ from deint_env.errors import DeintError
 
 CONFIDENCE = 0.95
 NAN3 = (math.nan, math.nan, math.nan)
+# fewer episodes per scenario than this: no intervals (a bootstrap over 1-2 seeds prints near-zero widths)
+MIN_SEEDS = 3
 TAUS = np.linspace(0.0, 1.0, 51)  # performance-profile thresholds (build computes them, plots draws them)
 
 

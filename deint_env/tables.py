@@ -38,10 +38,26 @@ def interval(d: dict[str, Any], name: str) -> str:
     return f"{num(d[name])} [{num(d[name + '_low'])}, {num(d[name + '_high'])}]"
 
 
+# parameters naming a file: an entry is shown by its registry name and version, never by a path
+_PATH_PARAMS = ("checkpoint=", "model=")
+
+
 def display_name(row: dict[str, Any]) -> str:
-    """The entry's name with what it is when that matters for reading its score."""
-    tag = " (oracle)" if row["oracle"] else " (learned)" if row.get("kind") == "learned" else ""
-    return row["policy"] + tag
+    """The entry's name with what it is when that matters for reading its score: oracle, ablation, and
+    for a learned entry its marker ("learned" only when its learned share is shown to be above 0)."""
+    name, _, params = row["policy"].partition(":")
+    items = [p for p in params.split(",") if p]
+    kept = [p for p in items if not p.startswith(_PATH_PARAMS)]
+    text = name + (":" + ",".join(kept) if kept else "")
+    if len(kept) < len(items):
+        text += f" @{str(row.get('policy_version'))[:12]}"
+    if row["oracle"]:
+        return text + " (oracle)"
+    if row.get("ablation_of"):
+        return text + " (ablation)"
+    if row.get("kind") == "learned":
+        return text + f" ({row.get('marker') or 'learned'})"
+    return text
 
 
 @dataclass(frozen=True)
@@ -58,16 +74,28 @@ def _metric_column(m: Metric) -> Column:
 def entry_columns(summary: bool = False) -> list[Column]:
     """The leaderboard's columns, or with `summary` those of `deint run` (no rank; the metrics marked
     `summary`; the score intervals, which may be missing, and the episode count)."""
-    cols = [] if summary else [Column("rank", lambda r: num(r["rank"], "d"), lambda r: r["rank"])]
+    cols = [] if summary else [Column("rank", lambda r: r.get("rank_label") or "-", lambda r: r["rank"])]
     cols += [Column("policy", display_name, lambda r: r["policy"])]
     if summary:
         cols += [Column("episodes", lambda r: str(r["episodes"]), lambda r: r["episodes"])]
     cols += [Column(f"{SCORE} {label} [95% CI]", lambda r, k=f"{SCORE}_{name}": interval(r, k),
-                    lambda r, k=f"{SCORE}_{name}": r[k]) for label, name in (("IQM", "iqm"), ("mean", "mean"))]
+                    lambda r, k=f"{SCORE}_{name}": r[k]) for label, name in (("mean", "mean"), ("IQM", "iqm"))]
     cols += [_metric_column(m) for m in metrics.METRICS if m.summary or not summary]
     cols += [Column("coverage", lambda r: f"{r['coverage']:.0%}", lambda r: r["coverage"]),
              Column("faults", lambda r: str(len(r["faults"])), lambda r: len(r["faults"]))]
+    if not summary:
+        cols += [Column("x fdp", lambda r: num(r.get("vs_fdp"), ".2f"), lambda r: r.get("vs_fdp")),
+                 Column("learned share [95% CI]", _share, lambda r: r.get("learned_share")),
+                 Column("test looks", lambda r: num(r.get("test_looks"), "d"), lambda r: r.get("test_looks"))]
     return cols
+
+
+def _share(row: dict[str, Any]) -> str:
+    if row.get("learned_share") is None:
+        return "-"
+    if row.get("learned_share_low") is None or row["learned_share_low"] != row["learned_share_low"]:
+        return f"{row['learned_share']:+.4f}"
+    return f"{row['learned_share']:+.4f} [{row['learned_share_low']:+.4f}, {row['learned_share_high']:+.4f}]"
 
 
 def entry_body(rows: Sequence[dict[str, Any]], summary: bool = False) -> tuple[list[str], list[list[str]]]:

@@ -1,12 +1,11 @@
-"""fdp's compiled core against the batched-numpy form and its interpreted path, the gated tree, and the
-robust start (issue 10 item 4)."""
+"""fdp's compiled core against the batched-numpy form (its interpreted path: tests/test_kernels.py), the
+gated tree, and the robust start (issue 10 item 4)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from baselines import fdp as fdp_module
 from baselines.fdp import FDP, initiate
 from baselines.kalman import DLMModel
 from deint_env import PriorSpec, Range, ScenarioSpec, SourceSpec, make_policy, simulate
@@ -40,28 +39,11 @@ def test_compiled_core_on_published_episodes(name, seed):
                                       play(make_policy(pol + ":engine=numpy"), ep).labels)
 
 
-def _interpreted(monkeypatch):
-    """Run the compiled functions' Python source instead (numba's `.py_func`), callers included."""
-    for name in ("_predict", "_emit", "_children", "_leaves", "_leaf", "_lookahead", "_commit", "_decide", "_chain",
-                 "_claim"):
-        monkeypatch.setattr(fdp_module, name, getattr(fdp_module, name).py_func)
-
-
 def _dense(n_sources=10, n_pulses=400):
     spec = ScenarioSpec(name="dense", n_pulses=n_pulses, toa_jitter_std=0.1,
                         sources=tuple(SourceSpec(period=Range(10.0, 60.0, log=True)) for _ in range(n_sources)),
                         priors=PriorSpec(period_error=0.01, phase_error=0.05))
     return simulate(spec, 7)
-
-
-def test_interpreted_path_gives_the_same_labels(monkeypatch):
-    ep = _dense(6, 150)
-    pols = ("fdp", "fdp:tree_gate=4,start=lookahead,start_lag=200", "fdp-ll:missing=true")
-    compiled = [play(make_policy(p), ep).labels for p in pols]
-    _interpreted(monkeypatch)
-    assert not hasattr(fdp_module._decide, "py_func")  # really the interpreted functions now
-    for p, labels in zip(pols, compiled):
-        np.testing.assert_array_equal(play(make_policy(p), ep).labels, labels)
 
 
 def test_a_wide_gate_removes_nothing_on_dense_scenes():

@@ -150,3 +150,21 @@ def test_blind_policy_parameters_out_of_range_are_one_line(capsys, spec, message
                  "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and message in err[0] and spec in err[0]
+
+
+@pytest.mark.parametrize("policy, limit", [("mht", 256), ("dokf", 256), ("pt-post", 256), ("agile-kf", 256),
+                                           ("ekf-bank", 256), ("renewal-ml", 64)])
+def test_more_prior_tracks_than_a_tracker_handles_is_not_applicable_at_once(tmp_path, capsys, policy, limit):
+    """Issue 26: a priors file of 5,000 tracks ran mht (and renewal-ml, dokf, the EKF banks) for many minutes;
+    the registry's track limit refuses it before the policy starts, with one line, through `deint label`."""
+    toa, _ = pulses(200)
+    n = limit + 1
+    periods = list(np.linspace(100.0, 200.0, n))
+    path, pri = tmp_path / "p.csv", tmp_path / "p.json"
+    path.write_text("toa\n" + "".join(f"{float(t)!r}\n" for t in toa))
+    pri.write_text(json.dumps({"period": periods, "jitter_std": SIGMA}))
+    code = main(["label", str(path), "--priors", str(pri), "--policy", policy, "-o", str(tmp_path / "out.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert f"policy '{policy}' handles at most {limit} tracks; this episode has {n} prior tracks" in err[0]
+    assert not (tmp_path / "out.csv").exists()

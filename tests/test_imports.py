@@ -141,3 +141,33 @@ def test_labelling_imports_only_what_the_policy_needs(tmp_path):
     assert "baselines.pt" in plain and not {"numba", "sklearn", "torch"} & {m.split(".")[0] for m in plain}
     compiled = loaded_after("from deint_env.policies import make_policy\nmake_policy('fdp')", tmp_path)
     assert "numba" in compiled and not {"sklearn", "torch"} & {m.split(".")[0] for m in compiled}
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))  # dunders are public
+
+
+def test_no_module_imports_a_private_name_of_another_package():
+    """A name with a leading underscore is private to its top-level package: agents/ may use baselines'
+    public kernel API (e.g. `baselines.mht.step`), never `baselines.mht.kernels._future`."""
+    bad = []
+    for name, path in modules().items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else []))
+            top = base.split(".")[0]
+            if top in PACKAGES and top != name.split(".")[0]:
+                bad += [f"{name}: from {base} import {a.name}" for a in node.names
+                        if _private(a.name) or any(_private(p) for p in base.split("."))]
+    assert not bad, bad
+
+
+def test_the_private_import_check_sees_private_imports():
+    """The check above can fail: the old lmht import of mht's private kernels is caught."""
+    old = "from baselines.mht import (MHT, _count, _step)\nfrom baselines.mht import step\n"
+    names = [a.name for node in ast.walk(ast.parse(old)) if isinstance(node, ast.ImportFrom) for a in node.names]
+    assert [n for n in names + ["__version__"] if _private(n)] == ["_count", "_step"]

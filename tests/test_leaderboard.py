@@ -118,8 +118,9 @@ def test_rerun_is_identical_and_recomputes_nothing(tmp_path, monkeypatch):
     assert _build_cli(tmp_path / "a") == 0
     assert len(calls) == len(POLICIES) * len(SCENARIOS) * 2
     first = _files(tmp_path / "a" / SUITE)
-    assert {"results.jsonl", "leaderboard.json", "leaderboard.csv", "README.md", "index.html", "intervals.png",
-            "profiles.png", "score_vs_n_sources.png", "score_vs_jitter_rel.png"} <= set(first)
+    assert {"results.jsonl", "leaderboard.json", "leaderboard.csv", "README.md", "index.html", "history.json",
+            "profiles.png", "pareto.png", "score_vs_n_sources.png", "score_vs_jitter_rel.png"} <= set(first)
+    assert "intervals.png" not in first  # 2 seeds per scenario: no intervals (fewer than 3)
     calls.clear()
     assert _build_cli(tmp_path / "a") == 0
     assert calls == []

@@ -1,4 +1,4 @@
-"""`lmht` (agents/lmht.py, the scorer in baselines/mht.py): the numba scorer against the torch one, a zero
+"""`lmht` (agents/lmht.py, the scorer in baselines/mht/scorer.py): the numba scorer against the torch one, a zero
 scorer against mht, the training rows against the truth and a checkpoint's round trip (the checked-in
 agent on pulse files from an independent generator through `deint label`: tests/test_agents_beam.py)."""
 
@@ -122,7 +122,8 @@ def test_misfit_is_the_likelihood_ratio_of_the_decided_rates_against_the_stated_
     floors them, a rate left to estimate held to 5 %); an observed rate at or below that adds nothing."""
     from scipy.stats import binom, poisson
 
-    from baselines.mht import _R_FLOOR, _Q_FLOOR, _misfit
+    from baselines.mht.kernels import _misfit
+    from baselines.mht.state import _Q_FLOOR, _R_FLOOR
 
     stated = _settings("robust-v0/robust-combined")  # q = 0.1, r = 0.1
     zero = _settings("core-v0/core-n6-spread1.5-jitter0.5")  # q = r = 0: the floors

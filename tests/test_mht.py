@@ -1,5 +1,6 @@
-"""`mht` (baselines/mht.py) and unknown rates in priors: pulse files made by an independent generator,
-through the CLI; the compiled step against the same step interpreted; dense scenes against the genie."""
+"""`mht` (baselines/mht/) and unknown rates in priors: pulse files made by an independent generator,
+through the CLI; dense scenes against the genie (the compiled kernels against their Python source:
+tests/test_kernels.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import numpy as np
 import pytest
 
 import baselines.mht as mht_module
+from baselines.mht import kernels, start
+from baselines.mht import policy as mht_policy
 from deint_env import PriorSpec, Range, ScenarioSpec, SourceSpec, make_policy, simulate
 from deint_env.cli import main
 from deint_env.episode import Priors
@@ -151,8 +154,8 @@ def test_mht_starts_a_crowded_scene_jointly():
     cfg, toa = policy.cfg, np.ascontiguousarray(ep.toa)
     end = min(cfg.reserve + 1, int(np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right")))
     blk = policy.cur.blk[0].copy()
-    log_q, log_1mq, _ = mht_module._rates(cfg, np.zeros(3, np.int64))
-    mht_module._initiate(toa, end, blk, cfg, log_q, log_1mq)
+    log_q, log_1mq, _ = kernels.rates(cfg, np.zeros(3, np.int64))
+    start.initiate(toa, end, blk, cfg, log_q, log_1mq)
     phase = blk[:, mht_module.TAU] + blk[:, mht_module.PERIOD]
     first = np.array([toa[ep.source == i][0] for i in range(32)])
     assert np.sum(np.abs(phase - first) <= 0.3) >= 27, np.abs(phase - first)
@@ -175,8 +178,8 @@ def test_mht_joint_start_leaves_a_faster_sources_harmonic_alone(seed):
     cfg = policy.cfg
     end = min(cfg.reserve + 1, int(np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right")))
     blk = policy.cur.blk[0].copy()
-    log_q, log_1mq, _ = mht_module._rates(cfg, np.zeros(3, np.int64))
-    mht_module._initiate(toa, end, blk, cfg, log_q, log_1mq)
+    log_q, log_1mq, _ = kernels.rates(cfg, np.zeros(3, np.int64))
+    start.initiate(toa, end, blk, cfg, log_q, log_1mq)
     np.testing.assert_allclose(blk[:, mht_module.PERIOD], [10.0, 40.6], atol=0.02)
     np.testing.assert_allclose(blk[:, mht_module.TAU] + blk[:, mht_module.PERIOD], [3.0, 23.4], atol=0.3)
 
@@ -191,23 +194,6 @@ def test_mht_crowded_start_loses_no_source():
     assert (res.metrics["accuracy"] - rand) / (genie - rand) >= 0.98
     for i in range(32):
         assert np.mean(res.labels[ep.source == i] == i) > 0.5, i
-
-
-@pytest.mark.parametrize("search", ["", ",margin=8", ",margin=8,dead=1,look_restart=2,jump=0.04,jump_z=1,drift=0.001"])
-def test_mht_compiled_equals_interpreted(monkeypatch, search):
-    """The numba step and the same Python code (`.py_func`) give the same labels."""
-    spec = ScenarioSpec(name="mht-small", n_pulses=150, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
-                        sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
-                        priors=PriorSpec(period_error=0.01, phase_error=0.05))
-    ep = simulate(spec, 5)
-    policy = "mht:beam=8,start_beam=16,nscan=6,lag=120,dense=0" + search
-    compiled = play(make_policy(policy), ep).labels
-    for name in ("_step", "_future", "_prune", "_rates", "_run", "_count", "_restart_period", "_chain",
-                 "_best_start", "_own_train", "_mark", "_in_first_gate", "_start_two", "_initiate", "_explained",
-                 "_loglik"):
-        monkeypatch.setattr(mht_module, name, getattr(mht_module, name).py_func)
-    interpreted = play(make_policy(policy), ep).labels
-    np.testing.assert_array_equal(compiled, interpreted)
 
 
 def _three_sources(tmp_path, seed: int, n_per_source: int, **noise):
@@ -292,7 +278,7 @@ def test_mht_hands_its_work_arrays_to_the_next_policy():
     spec = ScenarioSpec(name="mht-reuse", n_pulses=300, toa_jitter_std=0.2, missing_prob=0.1, spurious_rate=0.1,
                         sources=tuple(SourceSpec(period=Range(10.0, 30.0, log=True)) for _ in range(3)),
                         priors=PriorSpec(period_error=0.01, phase_error=0.05))
-    mht_module._SPARE.clear()
+    mht_policy._SPARE.clear()
     fresh = play(make_policy("mht"), simulate(spec, 2)).labels
     first = make_policy("mht")
     play(first, simulate(spec, 1))  # its arrays (the first policy's, handed on) now hold another episode
@@ -304,9 +290,10 @@ def test_mht_hands_its_work_arrays_to_the_next_policy():
 
 
 def test_drift_terms_are_m_random_walk_predictions():
-    """The closed-form m-step terms of a period's random walk (`_drift_terms`) equal m of kalman.predict's
+    """The closed-form m-step terms of a period's random walk (`kalman.drift_terms`) equal m of kalman.predict's
     steps with drift variance q = (drift T)^2 (tau' = tau + T, then T' = T + w), less the q = 0 ones."""
     from baselines.kalman import Block, DLMModel, predict
+    from baselines.kalman_jit import drift_terms
     t, drift, iv = 12.5, 0.01, 0.03
     start = Block(t, 100.0, 0.02, -0.01, 0.3)
     for m in (1, 2, 3, 7):
@@ -314,7 +301,7 @@ def test_drift_terms_are_m_random_walk_predictions():
         for _ in range(m):
             walk = predict(walk, DLMModel(jitter_var=1.0, drift_var=(drift * t) ** 2, interval_var=iv))
             still = predict(still, DLMModel(jitter_var=1.0, interval_var=iv))
-        d_xx, d_tx, d_tt = mht_module._drift_terms(drift, t, float(m))
+        d_xx, d_tx, d_tt = drift_terms(drift, t, float(m))
         np.testing.assert_allclose([walk.p_xx - still.p_xx, walk.p_tx - still.p_tx, walk.p_tt - still.p_tt],
                                    [d_xx, d_tx, d_tt], rtol=1e-12, atol=1e-15)
 
@@ -444,12 +431,12 @@ def test_mht_starts_exchangeable_tracks_from_the_relative_frequencies():
     # the start's likelihood (`_loglik`) scores a labelling under the tracks' priors: under the informed
     # prior the true labelling beats the one with tracks 0 and 1 swapped (under the stated ones they tie)
     cfg = policy.cfg
-    log_q, log_1mq, log_rho = mht_module._rates(cfg, np.zeros(3, np.int64))
+    log_q, log_1mq, log_rho = kernels.rates(cfg, np.zeros(3, np.int64))
     blk = policy.prior
-    right = mht_module._loglik(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
-    swapped = mht_module._loglik(toa[:300], np.array([1, 0, 2])[src[:300]], blk, cfg, log_q, log_1mq, log_rho)
+    right = start._loglik(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
+    swapped = start._loglik(toa[:300], np.array([1, 0, 2])[src[:300]], blk, cfg, log_q, log_1mq, log_rho)
     assert right > swapped + 10.0
-    assert right == mht_module._loglik.py_func(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
+    assert right == start._loglik.py_func(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
 
 
 @pytest.mark.parametrize("init", ["phase", "mk94"])

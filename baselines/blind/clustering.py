@@ -14,8 +14,9 @@ import numpy as np
 
 from baselines.blind.descriptors import standardised
 from baselines.blind.pipeline import Deinterleaving, FoundTrain
-from baselines.blind.policy import BlindWindowPolicy
+from baselines.blind.policy import WINDOW, BlindWindowPolicy
 from deint_env.modulation import PRIModel
+from deint_env.params import Param, declare
 
 
 def descriptors(toa: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> np.ndarray:
@@ -59,10 +60,14 @@ class ClusterPolicy(BlindWindowPolicy):
 class DBSCANPolicy(ClusterPolicy):
     """`dbscan`: scikit-learn's DBSCAN (eps in standardised units, min_samples)."""
 
+    PARAMS = declare(Param("eps", float, 0.1, "DBSCAN's neighbourhood radius (standardised units)", low=0,
+                           low_open=True),
+                     Param("min_samples", int, 5, "DBSCAN's core-point neighbourhood size", low=1),
+                     WINDOW)
+
     def __init__(self, eps: float = 0.1, min_samples: int = 5, window: int = 1000):
+        self.PARAMS.check(locals())
         super().__init__(window)
-        if not eps > 0 or not (isinstance(min_samples, int) and min_samples >= 1):
-            raise ValueError(f"eps={eps!r}, min_samples={min_samples!r}: eps > 0 and min_samples an integer >= 1")
         self.eps, self.min_samples = float(eps), min_samples
 
     def cluster(self, x: np.ndarray) -> np.ndarray:
@@ -74,10 +79,14 @@ class DBSCANPolicy(ClusterPolicy):
 class HDBSCANPolicy(ClusterPolicy):
     """`hdbscan`: scikit-learn's HDBSCAN (min_cluster_size, min_samples)."""
 
+    PARAMS = declare(Param("min_cluster_size", int, 20, "HDBSCAN's smallest cluster", low=2),
+                     Param("min_samples", int, None, "HDBSCAN's core-point neighbourhood size (none: min_cluster_size)",
+                           low=1, optional=True),
+                     WINDOW)
+
     def __init__(self, min_cluster_size: int = 20, min_samples: int | None = None, window: int = 1000):
+        self.PARAMS.check(locals())
         super().__init__(window)
-        if not (isinstance(min_cluster_size, int) and min_cluster_size >= 2):
-            raise ValueError(f"min_cluster_size={min_cluster_size!r} is invalid: an integer >= 2")
         self.min_cluster_size, self.min_samples = min_cluster_size, min_samples
 
     def cluster(self, x: np.ndarray) -> np.ndarray:

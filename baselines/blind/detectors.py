@@ -9,18 +9,12 @@ import numpy as np
 
 from baselines.blind.histograms import Candidate, cdif_candidates, sdif_candidates
 from baselines.blind.pri_transform import pri_transform_candidates
+from deint_env.params import Param, declare
 
 
-def check_number(name: str, value: object, low: float, high: float, *, low_open: bool = True,
-                 high_open: bool = False) -> float:
-    """`value` as a float if it is a finite number in the range (low, high] (or as the flags say), else
-    one ValueError line naming the parameter, its value and the range."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value > low if low_open else value >= low) and (value < high if high_open else value <= high)
-    if not ok:
-        lo, hi = "(" if low_open else "[", ")" if high_open else "]"
-        raise ValueError(f"{name}={value!r} is invalid: a number in {lo}{low:g}, {high:g}{hi}")
-    return float(value)
+def _number(name: str, default: float, meaning: str, high: float, high_open: bool = False) -> Param:
+    """A detector's threshold: a number in (0, high] (or (0, high))."""
+    return Param(name, float, default, meaning, low=0, high=high, low_open=True, high_open=high_open)
 
 
 def _levels(t: np.ndarray, pri_max: float) -> int:
@@ -32,8 +26,11 @@ def _levels(t: np.ndarray, pri_max: float) -> int:
 class CDIF:
     """Mardia's cumulative difference histogram (threshold x D / tau, double-interval check)."""
 
+    PARAMS = declare(_number("x", 0.5, "CDIF: the threshold's multiple of D / tau", 100))
+
     def __init__(self, x: float = 0.5):
-        self.x = check_number("x", x, 0, 100)  # the threshold's multiple of D / tau
+        self.PARAMS.check(locals())
+        self.x = float(x)
 
     def __call__(self, t: np.ndarray, sigma: float, pri_min: float, pri_max: float) -> Iterator[list[Candidate]]:
         if t.size < 3:
@@ -45,9 +42,12 @@ class CDIF:
 class SDIF:
     """Milojevic & Popovic's sequential difference histogram (threshold x (E - c) exp(-tau / (k N)))."""
 
+    PARAMS = declare(_number("x", 0.1, "SDIF: the threshold's share of the pulses left (E - c)", 1),
+                     _number("k", 0.3, "SDIF: the threshold's exponential decay over tau / N", 100))
+
     def __init__(self, x: float = 0.1, k: float = 0.3):
-        # x: the threshold's share of the pulses left (E - c); k: its exponential decay over tau / N
-        self.x, self.k = check_number("x", x, 0, 1), check_number("k", k, 0, 100)
+        self.PARAMS.check(locals())
+        self.x, self.k = float(x), float(k)
 
     def __call__(self, t: np.ndarray, sigma: float, pri_min: float, pri_max: float) -> Iterator[list[Candidate]]:
         if t.size < 3:
@@ -59,12 +59,15 @@ class SDIF:
 class PRITransform:
     """Nishiguchi & Kobayashi's jitter-robust PRI transform (one 'level': all peaks at once)."""
 
+    PARAMS = declare(_number("eps", 0.01, "the relative jitter a bin tolerates", 1, high_open=True),
+                     _number("alpha", 0.3, "the threshold alpha T_obs / tau: its share of the intervals a train "
+                             "would have", 1),
+                     _number("beta", 0.15, "the threshold beta C: its share of the bin's pair count (coherence)", 1),
+                     _number("gamma", 4.0, "the noise threshold's multiple of its standard deviation", 1000))
+
     def __init__(self, eps: float = 0.01, alpha: float = 0.3, beta: float = 0.15, gamma: float = 4.0):
-        # eps: the relative jitter a bin tolerates; alpha, beta: the peak thresholds' shares; gamma: the noise
-        # threshold's multiple of its standard deviation
-        self.eps = check_number("eps", eps, 0, 1, high_open=True)
-        self.alpha, self.beta = check_number("alpha", alpha, 0, 1), check_number("beta", beta, 0, 1)
-        self.gamma = check_number("gamma", gamma, 0, 1000)
+        self.PARAMS.check(locals())
+        self.eps, self.alpha, self.beta, self.gamma = float(eps), float(alpha), float(beta), float(gamma)
 
     def __call__(self, t: np.ndarray, sigma: float, pri_min: float, pri_max: float) -> Iterator[list[Candidate]]:
         width = pri_min * 1e-3  # the minimum spacing: bins are tau^2 / (8 D) apart (see bin_centres)

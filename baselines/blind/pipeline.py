@@ -64,28 +64,41 @@ class Deinterleaving(NamedTuple):
     trains: list[FoundTrain]
 
 
-def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Chain]:
-    free = np.ones(t.size, dtype=bool)
+def take_chains(free: np.ndarray, least: int, room: int, find: Callable[[], Chain | None]) -> list[Chain]:
+    """The extraction loop: chains found one at a time (`find()`, None: no more), each taking its pulses
+    from `free`, while at least `least` pulses are free and fewer than `room` chains are taken."""
     chains: list[Chain] = []
-    while free.sum() >= p.min_pulses and len(chains) < p.max_trains:
-        found = None
-        shared = pool(t, free)
-        tries = 0
-        for level in detect(t[free], p.sigma, p.pri_min, p.pri_max):
-            for cand in sorted(level, key=lambda c: c.pri):
-                found = sequence_search(t, free, cand.pri, cand.unc, p.sigma, max_miss=p.max_miss,
-                                        min_pulses=p.min_pulses, min_fill=p.min_fill, shared=shared)
-                tries += 1
-                if found is not None or tries >= p.max_tries:
-                    break
-            if found is not None or tries >= p.max_tries:
-                break
+    while free.sum() >= least and len(chains) < room:
+        found = find()
         if found is None:
             break
         chains.append(found)
         free[found.index] = False
+    return chains
+
+
+def extract_chains(t: np.ndarray, detect: Detector, p: SearchParams) -> list[Chain]:
+    free = np.ones(t.size, dtype=bool)
+    chains = take_chains(free, p.min_pulses, p.max_trains, lambda: _constant_chain(t, free, detect, p))
     chains.extend(agile_chains(t, free, p, len(chains)))
     return stitch(t, chains, p.sigma)
+
+
+def _constant_chain(t: np.ndarray, free: np.ndarray, detect: Detector, p: SearchParams) -> Chain | None:
+    """The first train the detector's candidate PRIs give among the free pulses (levels in order, each
+    level's PRIs from the shortest; at most `max_tries` searches)."""
+    shared = pool(t, free)
+    tries = 0
+    for level in detect(t[free], p.sigma, p.pri_min, p.pri_max):
+        for cand in sorted(level, key=lambda c: c.pri):
+            found = sequence_search(t, free, cand.pri, cand.unc, p.sigma, max_miss=p.max_miss,
+                                    min_pulses=p.min_pulses, min_fill=p.min_fill, shared=shared)
+            tries += 1
+            if found is not None:
+                return found
+            if tries >= p.max_tries:
+                return None
+    return None
 
 
 def _edge_pri(t: np.ndarray, c: Chain, last: bool) -> float:
@@ -133,31 +146,26 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
     (bins 5 % of the PRI wide, the first three difference levels), and the walk fits its predicting
     line to the last 5 pulses only (where no candidate gives a train that way, a parabola to the last 8) and widens its
     gate by 4 % of the PRI, so it follows the PRI as it moves."""
-    chains: list[Chain] = []
-    while free.sum() >= 3 * p.min_pulses and n_found + len(chains) < p.max_trains:
-        tf = t[free]
-        edges = np.exp(np.arange(math.log(p.pri_min), math.log(p.pri_max), 0.05))
-        if edges.size < 3:
-            break
-        h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
-        centre = np.sqrt(edges[:-1] * edges[1:])
-        found = None
-        for bend in (False, True):  # lines first, for every candidate; parabolas where none passes
-            for i in np.argsort(-h)[:5]:
-                if h[i] < p.min_pulses:
-                    break
-                found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma,
-                                        memory=8 if bend else 5, max_miss=p.max_miss, min_pulses=3 * p.min_pulses,
-                                        min_fill=p.min_fill, slack=0.04 * float(centre[i]), curve=bend)
-                if found is not None:
-                    break
-            if found is not None:
+    return take_chains(free, 3 * p.min_pulses, p.max_trains - n_found, lambda: _agile_chain(t, free, p))
+
+
+def _agile_chain(t: np.ndarray, free: np.ndarray, p: SearchParams) -> Chain | None:
+    tf = t[free]
+    edges = np.exp(np.arange(math.log(p.pri_min), math.log(p.pri_max), 0.05))
+    if edges.size < 3:
+        return None
+    h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
+    centre = np.sqrt(edges[:-1] * edges[1:])
+    for bend in (False, True):  # lines first, for every candidate; parabolas where none passes
+        for i in np.argsort(-h)[:5]:
+            if h[i] < p.min_pulses:
                 break
-        if found is None:
-            break
-        chains.append(found)
-        free[found.index] = False
-    return chains
+            found = sequence_search(t, free, float(centre[i]), 0.1 * float(centre[i]), p.sigma,
+                                    memory=8 if bend else 5, max_miss=p.max_miss, min_pulses=3 * p.min_pulses,
+                                    min_fill=p.min_fill, slack=0.04 * float(centre[i]), curve=bend)
+            if found is not None:
+                return found
+    return None
 
 
 def _off_lattice(fit, sigma: float) -> bool:

@@ -27,7 +27,8 @@ from baselines.blind.pipeline import Deinterleaving, Detector, SearchParams, dei
 from baselines.blind.pri_models import line_fit
 from baselines.windowed import MAX_WINDOW, WindowedPolicy
 from deint_env.episode import Priors
-from deint_env.errors import DeintError, NotApplicable
+from deint_env.errors import DeintError, NotApplicable, check
+from deint_env.params import Param, declare
 from deint_env.modulation import PRIModel
 
 
@@ -37,18 +38,30 @@ from deint_env.modulation import PRIModel
 MAX_PULSES = 100_000
 
 
-def _check_window(window: object) -> int:
-    if isinstance(window, bool) or not isinstance(window, int) or not 2 <= window <= MAX_WINDOW:
-        raise ValueError(f"window={window!r} is invalid: an integer in [2, {MAX_WINDOW}] (pulses per batch; the "
-                         f"lag is window - 1)")
-    return window
+WINDOW = Param("window", int, 1000, "pulses per batch (the lag is window - 1)", low=2, high=MAX_WINDOW)
+PARAMS = declare(
+    WINDOW,
+    Param("align", bool, True, "re-associate the pulses to the trains' estimated schedules by MAP alignment "
+          "(false: the papers' search alone)"),
+    Param("pri_min", float, None, "the shortest PRI searched, in TOA units (none: from the data)", low=0,
+          low_open=True, optional=True),
+    Param("pri_max", float, None, "the longest PRI searched, above pri_min (none: from the data)", low=0,
+          low_open=True, optional=True),
+    Param("min_pulses", int, 6, "the fewest pulses a train has", low=3),
+    Param("min_fill", float, 0.8, "the least share of a train's expected arrivals found", low=0, high=1,
+          low_open=True),
+    Param("max_miss", int, 3, "missed pulses the sequence search bridges", low=0, high=1000),
+    Param("presort_eps", float, 0.3, "DBSCAN eps of the presort on pulse descriptors (standardised units)", low=0,
+          low_open=True),
+)
 
 
 class BlindWindowPolicy(WindowedPolicy):
     """Base: windows of pulses (`WindowedPolicy`), labels carried across windows, estimates."""
 
     def __init__(self, window: int = 1000):
-        super().__init__(_check_window(window))
+        WINDOW.validate(window)
+        super().__init__(window)
         self._features: dict[str, np.ndarray] | None = None
         self._sigma_used = 0.0  # the TOA noise the last window was deinterleaved with
 
@@ -167,21 +180,9 @@ class HistogramPolicy(BlindWindowPolicy):
                  pri_max: float | None = None, min_pulses: int = 6, min_fill: float = 0.8, max_miss: int = 3,
                  presort_eps: float = 0.3):
         super().__init__(window)
-        for name, v in (("pri_min", pri_min), ("pri_max", pri_max)):
-            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name}={v!r} is invalid: a positive number (TOA units) or none (from the data)")
-        if pri_min is not None and pri_max is not None and pri_min >= pri_max:
-            raise ValueError(f"pri_min={pri_min} must be below pri_max={pri_max}")
-        if not (isinstance(min_pulses, int) and min_pulses >= 3):
-            raise ValueError(f"min_pulses={min_pulses!r} is invalid: an integer >= 3")
-        if not 0 < min_fill <= 1:
-            raise ValueError(f"min_fill={min_fill!r} is invalid: a number in (0, 1]")
-        if not presort_eps > 0:
-            raise ValueError(f"presort_eps={presort_eps!r} is invalid: a positive number (standardised units)")
-        if isinstance(max_miss, bool) or not isinstance(max_miss, int) or not 0 <= max_miss <= 1000:
-            raise ValueError(f"max_miss={max_miss!r} is invalid: an integer in [0, 1000] (missed pulses bridged)")
-        if not isinstance(align, bool):
-            raise ValueError(f"align={align!r} is invalid: true or false")
+        PARAMS.check(locals())
+        check(pri_min is None or pri_max is None or pri_min < pri_max, "pri_min", pri_min,
+              f"below pri_max={pri_max}")
         self.presort_eps = float(presort_eps)
         self.align = align
         self.pri_min, self.pri_max = pri_min, pri_max
@@ -269,6 +270,8 @@ class HistogramPolicy(BlindWindowPolicy):
 class CDIFPolicy(HistogramPolicy):
     """`cdif`: Mardia's CDIF (1989) + sequence search."""
 
+    PARAMS = CDIF.PARAMS.plus(*PARAMS)
+
     def __init__(self, x: float = 0.5, **kw: Any):
         super().__init__(**kw)
         self.detector = CDIF(x)
@@ -277,6 +280,8 @@ class CDIFPolicy(HistogramPolicy):
 class SDIFPolicy(HistogramPolicy):
     """`sdif`: Milojevic & Popovic's SDIF (1992) + sequence search."""
 
+    PARAMS = SDIF.PARAMS.plus(*PARAMS)
+
     def __init__(self, x: float = 0.1, k: float = 0.3, **kw: Any):
         super().__init__(**kw)
         self.detector = SDIF(x, k)
@@ -284,6 +289,8 @@ class SDIFPolicy(HistogramPolicy):
 
 class PRITransformPolicy(HistogramPolicy):
     """`pri-transform`: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search."""
+
+    PARAMS = PRITransform.PARAMS.plus(*PARAMS)
 
     def __init__(self, eps: float = 0.01, alpha: float = 0.3, beta: float = 0.15, gamma: float = 4.0, **kw: Any):
         super().__init__(**kw)

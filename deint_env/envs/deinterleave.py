@@ -179,12 +179,18 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         self.observation_space = observation_space()
         self.episode: Episode | None = None
         self._step = 0
+        self._scored = True
 
     @classmethod
-    def for_episode(cls, episode: Episode, lag: int = 0, clustering_metrics: bool = True) -> DeinterleaveEnv:
-        """An env that plays one given episode (e.g. read from a pulse file); call `load_episode`."""
-        return cls(None, lag=lag, clustering_metrics=clustering_metrics, n_labels=episode.n_labels,
-                   blind=episode.blind)
+    def for_episode(cls, episode: Episode, lag: int = 0, clustering_metrics: bool = True,
+                    scored: bool = True) -> DeinterleaveEnv:
+        """An env that plays one given episode (e.g. read from a pulse file); call `load_episode`.
+        `scored=False`: no metrics on the last step (labelling a file: its truth, if any, is not wanted,
+        and the Hungarian matching would load scipy for nothing)."""
+        env = cls(None, lag=lag, clustering_metrics=clustering_metrics, n_labels=episode.n_labels,
+                  blind=episode.blind)
+        env._scored = scored
+        return env
 
     # ---- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -253,9 +259,11 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         priors = info["priors"] = info["priors"].copy()
         for k in self._step_arrays:
             priors[k] = priors[k].copy()
-        if terminated:
+        if terminated and self._scored:
             self._final = self.metrics()
             info["metrics"] = _info_metrics(self._final)
+        elif terminated:
+            info["metrics"] = {}
         else:
             info["metrics"] = pending = self._pending.copy()
             pending["pe"] = pending["pe"].copy()

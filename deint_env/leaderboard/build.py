@@ -19,6 +19,8 @@ import numpy as np
 
 from deint_env import metrics, stats
 from deint_env.aggregate import aggregate_entry
+from deint_env.divisions import DIVISIONS
+from deint_env.leaderboard import history, ranking, timing
 from deint_env.errors import DeintError
 from deint_env import policies
 from deint_env.policies import spec_version
@@ -29,7 +31,6 @@ from deint_env.suites import TAGS, SuiteEntry, list_suites, load_suite
 DEFAULT_ROOT = Path("leaderboards")
 RESULTS = "results.jsonl"
 BOARD = "leaderboard.json"
-TOP_IMPROVEMENT = 3  # probability of improvement between every pair of the top-3 ranked entries
 SUFFIX = " (submitted)"  # a submission's entry is its name and this (deint_env.leaderboard.submit)
 
 
@@ -119,6 +120,24 @@ def default_policies() -> list[str]:
     return policies.default_policies()
 
 
+def plays_suite(spec: str, suite: str) -> bool:
+    """Whether the policy of `spec` plays some scenario of `suite` (its modes: anchored, blind)."""
+    modes = {"blind" if e.spec.blind else "anchored" for e in load_suite(suite)}
+    return bool(modes & set(policies.policy_info(policies.parse_policy_spec(spec)[0]).modes))
+
+
+def board_entries(suite: str) -> list[str]:
+    """What a board plays by default: every shipped policy (`default_policies`) in every division its
+    parameters reach (`policies.division_specs`), each tuned preset made for the suite, and beside every
+    learned entry its ablation.  Policies that cannot play the suite's mode (blind, anchored) are left out."""
+    specs = []
+    for name in filter(lambda n: plays_suite(n, suite), default_policies()):
+        specs += [name] + policies.division_specs(name)
+    specs += policies.tuned_specs(suite)
+    specs += [a for a in map(policies.ablation_spec, specs) if a is not None]
+    return list(dict.fromkeys(specs))
+
+
 @dataclass(frozen=True)
 class Scope:
     """The episodes a leaderboard scores: every test seed of every scenario of `suite`, or (for smoke
@@ -204,12 +223,24 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
         current = current_versions(records)
         records = without_superseded(records, current)
         board, profiles = aggregate(records, scope, reps=reps, current=current)
-        files = {RESULTS: results_text(records)}
+        looks = history.update(history.read(folder), board["rows"])
+        add_looks_and_timings(board, looks, timing.read(folder))
+        files = {RESULTS: results_text(records), history.HISTORY: history.text(looks)}
         files.update(render.render_all(board))
         files.update(plots.render_all(board, profiles))
-        obsolete = [p.name for p in folder.glob("score_vs_*.png") if p.name not in files]
+        obsolete = [p.name for p in folder.glob("*.png") if p.name not in files]
         render.publish(folder, files, obsolete)
     return board
+
+
+def add_looks_and_timings(board: dict[str, Any], looks: list[history.Look], timings: dict[str, Any] | None) -> None:
+    """Each row's test-look count, and its speed from the board's one timing run (none without one:
+    times from the scoring runs are never shown, they come from many runs and processes)."""
+    board["timing"] = None if timings is None else {k: timings[k] for k in ("date", "machine", "method", "reference")}
+    for r in board["rows"]:
+        r["test_looks"] = history.test_looks(looks, r)
+        t = (timings or {}).get("policies", {}).get(r["policy"]) or {}
+        r["us_per_pulse"], r["vs_fdp"] = t.get("us_per_pulse"), t.get("vs_fdp")
 
 
 def results_text(records: list[EpisodeRecord]) -> str:
@@ -299,6 +330,8 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000, seed
         by_policy.setdefault(r.policy, {})[key] = r
     groups, tags = _groups(entries)
     order = {e.name: i for i, e in enumerate(entries)}
+    seeds = min((len(scope.seeds(e)) for e in entries), default=0)
+    intervals = seeds >= ranking.MIN_SEEDS  # fewer seeds: intervals would mislead, so none are shown
     rows, profiles, strata_of, incomplete = [], {}, {}, {}
     for policy in sorted(by_policy):
         got = by_policy[policy]
@@ -306,7 +339,7 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000, seed
             incomplete[policy] = len(got)
             continue
         recs = sorted(got.values(), key=lambda r: (order[r.scenario], r.seed))
-        agg = aggregate_entry(recs, groups, taus=stats.TAUS, reps=reps, seed=seed)
+        agg = aggregate_entry(recs, groups, taus=stats.TAUS, reps=reps, seed=seed, intervals=intervals)
         strata_of[policy], profiles[policy], est = agg.strata, agg.profile, agg.groups
         row = dict(agg.row)
         row["version"] = ",".join(sorted({r.version for r in recs}))
@@ -316,7 +349,10 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000, seed
         row["by_setting"] = {key: [{"value": v, **_flat(est[setting_group(key, v)])} for v in values]
                              for key, values in plot_settings(entries).items()}
         rows.append(row)
-    _rank(rows)
+    complete = {p: got for p, got in by_policy.items() if p not in incomplete}
+    ranking.assign_divisions(rows)
+    ranking.learned_shares(rows, complete, intervals=intervals, reps=reps, seed=seed)
+    comparisons = ranking.rank(rows, strata_of, intervals=intervals, reps=reps, seed=seed)
     board = {
         "format": "deint-leaderboard", "format_version": 1,
         "suite": suite.name, "suite_version": suite.version, "suite_hash": suite.content_hash,
@@ -324,7 +360,8 @@ def aggregate(records: list[EpisodeRecord], scope: Scope, reps: int = 2000, seed
         "scope": scope.to_json(), "scenarios": len(entries), "episodes": len(expected), "tags": tags,
         "bootstrap": {"reps": reps, "seed": seed, "confidence": stats.CONFIDENCE, "strata": "scenarios",
                       "interval": "percentile"},
-        "rows": rows, "probability_of_improvement": _improvements(rows, strata_of, reps, seed),
+        "seeds_per_scenario": seeds, "intervals": intervals, "divisions": dict(DIVISIONS),
+        "rows": rows, "probability_of_improvement": [c._asdict() for c in comparisons],
         "incomplete": incomplete, "stale": stale,
         "metrics": [{"key": m.key, "label": m.label, "aggregate": m.aggregate, "higher_is_better": m.higher_is_better}
                     for m in metrics.METRICS],  # how to read each row's metric columns
@@ -338,33 +375,4 @@ def _flat(est: dict[str, tuple[float, float, float]], scored: int | None = None)
         out[name], out[f"{name}_low"], out[f"{name}_high"] = p, lo, hi
     if scored is not None:
         out["scored"] = scored
-    return out
-
-
-def _rank(rows: list[dict[str, Any]]) -> None:
-    """Sort by score IQM, best first; number the non-oracle entries that play every episode.  Entries
-    with partial coverage are scored on a subset, so they follow, unranked; entries with no score last."""
-    def scored(r):
-        return r["score_iqm"] is not None and math.isfinite(r["score_iqm"])
-
-    def key(r):
-        group = 0 if scored(r) and (r["oracle"] or r["coverage"] >= 1) else 1 if scored(r) else 2
-        return group, -r["score_iqm"] if scored(r) else 0.0, r["policy"]
-
-    rows.sort(key=key)
-    rank = 0
-    for r in rows:
-        ranked = not r["oracle"] and scored(r) and r["coverage"] >= 1
-        rank += ranked
-        r["rank"] = rank if ranked else None
-
-
-def _improvements(rows: list[dict[str, Any]], strata_of: dict[str, dict[str, list[float]]], reps: int,
-                  seed: int) -> list[dict[str, Any]]:
-    top = [r["policy"] for r in rows if r["rank"] is not None][:TOP_IMPROVEMENT]
-    out = []
-    for i, x in enumerate(top):
-        for y in top[i + 1:]:
-            p, lo, hi, n = stats.probability_of_improvement(strata_of[x], strata_of[y], reps=reps, seed=seed)
-            out.append({"x": x, "y": y, "p": p, "low": lo, "high": hi, "scenarios": n})
     return out

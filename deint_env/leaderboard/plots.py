@@ -52,7 +52,9 @@ def render_all(board: dict[str, Any], profiles: dict[str, tuple[np.ndarray, ...]
         return {}
     names = [display_name(r) for r in rows]
     colors = _colors(names)
-    out = {"intervals.png": intervals(rows, names, colors), "profiles.png": profile_plot(rows, names, colors, profiles)}
+    out = {"profiles.png": profile_plot(rows, names, colors, profiles), "pareto.png": pareto(board["suite"], rows)}
+    if board["intervals"]:
+        out["intervals.png"] = intervals(rows, names, colors)
     for key in board["rows"][0]["by_setting"]:
         out[f"score_vs_{key}.png"] = setting_plot(board["suite"], key, rows, names, colors)
     return out
@@ -101,7 +103,8 @@ def setting_plot(suite: str, key: str, rows: list[dict[str, Any]], names: list[s
         else:  # categories side by side, entries spread a little around each
             x = np.array([i for i, _ in pts], dtype=float) + 0.5 * ((k + 0.5) / len(rows) - 0.5)
         y = np.array([p["mean"] for _, p in pts])
-        err = np.array([[p["mean"] - p["mean_low"], p["mean_high"] - p["mean"]] for _, p in pts]).T
+        err = np.array([[p["mean"] - p["mean_low"], p["mean_high"] - p["mean"]] if _ok(p["mean_low"]) else [0.0, 0.0]
+                        for _, p in pts]).T  # no intervals on a board with too few seeds
         ax.errorbar(x, y, yerr=err, color=colors[name], label=name, marker="o", markersize=4, capsize=3,
                     linestyle="-" if numeric else "none", linewidth=1.5)
     if numeric:
@@ -118,4 +121,44 @@ def setting_plot(suite: str, key: str, rows: list[dict[str, Any]], names: list[s
     ax.grid(True, alpha=0.25)
     ax.spines[["top", "right"]].set_visible(False)
     ax.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), frameon=False)
+    return _png(fig)
+
+
+def _front(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The Pareto front of (cost, score) points: each point no other beats on both, by cost."""
+    front, best = [], -math.inf
+    for cost, score in sorted(points, key=lambda p: (p[0], -p[1])):
+        if score > best:
+            front.append((cost, score))
+            best = score
+    return front
+
+
+def pareto(suite: str, rows: list[dict[str, Any]]) -> bytes:
+    """Mean score against lag and against us/pulse, one colour per division, each division's front drawn."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    divisions = list(dict.fromkeys(r["division"] for r in rows))
+    colors = _colors(divisions)
+    ranked = [r for r in rows if not r["oracle"] and not r.get("ablation_of") and r["coverage"] >= 1]
+    for ax, key, label in ((axes[0], "lag", "lag (pulses; log scale, 0 drawn at 0.5)"),
+                           (axes[1], "us_per_pulse", "us/pulse (one timing run; log scale)")):
+        for d in divisions:
+            pts = [(max(float(r[key]), 0.5), r["score_mean"], display_name(r)) for r in ranked
+                   if r["division"] == d and _ok(r.get(key)) and _ok(r["score_mean"])]
+            if not pts:
+                continue
+            ax.scatter([p[0] for p in pts], [p[1] for p in pts], color=colors[d], label=d, s=18)
+            front = _front([(p[0], p[1]) for p in pts])
+            ax.step([p[0] for p in front], [p[1] for p in front], where="post", color=colors[d], alpha=0.6)
+            for x, y, name in pts:
+                if (x, y) in front:
+                    ax.annotate(name, (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("mean normalised score")
+        ax.grid(True, alpha=0.25)
+        ax.spines[["top", "right"]].set_visible(False)
+    axes[0].legend(title="division", frameon=False)
+    fig.suptitle(f"{suite}: score against decision lag and cost (each division's Pareto front)")
     return _png(fig)

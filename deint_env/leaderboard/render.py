@@ -25,6 +25,7 @@ from deint_env.tables import display_name, entry_columns, fault_lines, interval,
 
 PLOTS_DOC = {
     "intervals.png": "interval estimates: score IQM and mean per entry with 95 % stratified-bootstrap intervals",
+    "pareto.png": "mean score against lag and against us/pulse per division: the Pareto front of each",
     "profiles.png": "performance profiles: the share of test episodes scoring above tau, with 95 % bands",
 }
 
@@ -64,7 +65,8 @@ def render_all(board: dict[str, Any]) -> dict[str, str]:
 # cells
 # ---------------------------------------------------------------------------------------------------
 def csv_fields() -> list[str]:
-    return (["rank", "policy", "kind", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean", "score_mean_low",
+    return (["division", "rank", "rank_label", "policy", "kind", "marker", "ablation_of", "learned_share",
+             "learned_share_low", "learned_share_high", "test_looks", "vs_fdp", "score_iqm", "score_iqm_low", "score_iqm_high", "score_mean", "score_mean_low",
              "score_mean_high"] + [m.key for m in metrics.METRICS]
             + ["coverage", "played", "scored", "episodes", "faults", "oracle", "submitted", "version",
                "policy_version"])
@@ -81,7 +83,7 @@ def render_csv(board: dict[str, Any]) -> str:
     w = csv.writer(out, lineterminator="\n")
     w.writerow(head)
     for r in board["rows"]:
-        cells = [len(r[k]) if k == "faults" else r[k] for k in fields]
+        cells = [len(r[k]) if k == "faults" else r.get(k) for k in fields]
         cells += [board["suite"], board["suite_version"], board["suite_hash"]]
         cells += [r["tags"][t][f] for t in board["tags"] for f in TAG_FIELDS]
         w.writerow(["" if c is None else str(c).lower() if isinstance(c, bool) else c for c in cells])
@@ -104,15 +106,60 @@ def plot_files(board: dict[str, Any]) -> dict[str, str]:
     """Every plot of the folder and what it shows."""
     if not any(r["score_iqm"] is not None for r in board["rows"]):
         return {}
-    out = dict(PLOTS_DOC)
+    out = {k: v for k, v in PLOTS_DOC.items() if k != "intervals.png" or board["intervals"]}
     for key in board["rows"][0]["by_setting"]:
         out[f"score_vs_{key}.png"] = f"mean score against the scenario setting {key}, with 95 % intervals"
     return out
 
 
+IMPROVEMENT_HEAD = ["division", "X", "Y (next below)", "P(X > Y) [95% CI]", "scenarios", "rank"]
+
+
 def _improvement_body(b: dict[str, Any]) -> list[list[str]]:
-    return [[p["x"], p["y"], f"{num(p['p'])} [{num(p['low'])}, {num(p['high'])}]", str(p["scenarios"])]
-            for p in b["probability_of_improvement"]]
+    return [[p["division"], p["x"], p["y"], f"{num(p['p'])} [{num(p['low'])}, {num(p['high'])}]", str(p["scenarios"]),
+             "shared (interval includes 0.5)" if p["tied"] else "apart"] for p in b["probability_of_improvement"]]
+
+
+def division_title(name: str, bound: int | None) -> str:
+    return f"{name} (lag <= {bound})" if bound is not None else f"{name} (any lag)"
+
+
+def division_rows(b: dict[str, Any]) -> list[tuple[str, list[dict[str, Any]]]]:
+    """(title, rows) per division, in the board's order; entries that play no episode of the suite are
+    left to `board_notes`."""
+    return [(division_title(d, bound), [r for r in b["rows"] if r["division"] == d and _plays(r)])
+            for d, bound in b["divisions"].items()]
+
+
+def _plays(row: dict[str, Any]) -> bool:
+    return row["played"] > 0 or bool(row["faults"])
+
+
+def board_notes(b: dict[str, Any]) -> list[str]:
+    """What a reader must know before reading the ranks: the seeds behind them, where the times come from,
+    which learned entries are not shown to learn."""
+    out = []
+    if not b["intervals"]:
+        out.append(f"**Only {b['seeds_per_scenario']} test seed(s) per scenario** (fewer than 3): no intervals are "
+                   "shown and ranks follow the means untested; read them as provisional.")
+    t = b.get("timing")
+    if t is None:
+        out.append("**Speed:** not timed (run `deint leaderboard --time`); times from the scoring runs are not shown.")
+    else:
+        m = t["machine"]
+        out.append(f"**Speed** (us/pulse, x fdp) comes from one timing run on {t['date']} ({m['processor']}, "
+                   f"{m['cpus']} CPUs, Python {m['python']}): {t['method']}; fdp took "
+                   f"{num(t['reference']['us_per_pulse'], '.1f')} us/pulse on {t['reference']['suite']}'s episodes.")
+    idle = [display_name(r) for r in b["rows"] if not _plays(r)]
+    if idle:
+        out.append("**Not applicable** to any scenario of this suite (not shown): " + ", ".join(idle) + ".")
+    marked = [r for r in b["rows"] if r.get("kind") == "learned" and r.get("ablation") and not r.get("ablation_of")
+              and _plays(r)]
+    if marked:
+        out.append("**Learned entries** against their ablation (the same entry with its network's output zeroed, "
+                   "played on the same episodes): " + "; ".join(
+                       f"{display_name(r)}: {r['marker_reason']} (ablation {r['ablation']})" for r in marked) + ".")
+    return out
 
 
 def explanation(b: dict[str, Any]) -> list[str]:
@@ -128,9 +175,12 @@ def explanation(b: dict[str, Any]) -> list[str]:
         "genie is no longer a ceiling: scores above 1 there mean a policy did better than it.",
         "",
         "**Method.** Every policy plays every test episode through the environment, seeing only the "
-        "observations and the public priors. Over the episodes we report the interquartile mean (IQM: the "
-        "mean of the middle 50 % of scores, robust to a few failed episodes; the ranking uses it) and the "
-        f"mean, each with a 95 % stratified-bootstrap percentile interval ({reps} replicates, scenarios as "
+        "observations and the public priors. Rows are ranked within latency divisions by their declared lag "
+        "(online: lag <= 3, the look-ahead of MK94's forward DP; low-latency: lag <= 64; offline: any lag), by "
+        "score mean; an entry shares the rank of the one above it (\"1=\") when their probability of "
+        "improvement's interval includes 0.5. Over the episodes we report the mean and the interquartile mean "
+        f"(IQM: the mean of the middle 50 % of scores, robust to a few failed episodes), each with a 95 % "
+        f"stratified-bootstrap percentile interval ({reps} replicates, scenarios as "
         "strata, seeded so that reruns reproduce the numbers), computed with "
         f"[rliable](https://github.com/google-research/rliable) {b['rliable_version']} (Agarwal et al., "
         "\"Deep RL at the edge of the statistical precipice\", NeurIPS 2021). P(X > Y) is rliable's "
@@ -143,8 +193,12 @@ def explanation(b: dict[str, Any]) -> list[str]:
         "process): they are not scored, lower its coverage and are listed under the table. The period "
         "errors are medians over episodes of the final "
         "period estimates' mean relative error and of their RMS error over the Cramer-Rao bound (1 = "
-        "efficient), for policies that report estimates. us/pulse is the policy's own compute time "
-        "(measured on the machine that ran it: it varies between runs and machines).",
+        "efficient), for policies that report estimates. us/pulse is the policy's own compute time in the "
+        "board's one timing run, and x fdp its ratio to fdp's in that run. A learned entry's learned share is "
+        "its mean score minus that of its ablation (its network's output zeroed) on the same episodes; it is "
+        "marked learned only when that interval lies above 0, else search. Test looks counts the versions of "
+        "the entry's family scored on these test seeds before its own (history.json): each look is a chance "
+        "to have chosen on the test seeds.",
     ]
 
 
@@ -172,16 +226,22 @@ def render_readme(b: dict[str, Any]) -> str:
              "Generated by `deint leaderboard`; the same numbers are in [leaderboard.json](leaderboard.json) "
              "and [leaderboard.csv](leaderboard.csv), the episodes in [results.jsonl](results.jsonl), and a "
              "sortable page in [index.html](index.html).", ""]
+    lines += [line for note in board_notes(b) for line in (note, "")]
     cols = entry_columns()
-    lines += markdown_table([c.head for c in cols], [[c.cell(r) for c in cols] for r in b["rows"]])
+    for title, rows in division_rows(b):
+        lines += [f"## Division: {title}", ""]
+        lines += (markdown_table([c.head for c in cols], [[c.cell(r) for c in cols] for r in rows]) if rows
+                  else ["No entry plays this division."]) + [""]
+    lines.pop()
     lines += [line for note in notes(b) for line in ("", note)]
     if b["tags"]:
         lines += ["", "## Scores per tag", "", "Score IQM [95 % CI] over the scenarios carrying each tag.", ""]
         lines += markdown_table(["policy"] + b["tags"],
                            [[display_name(r)] + [interval(r["tags"][t], "iqm") for t in b["tags"]] for r in b["rows"]])
     if b["probability_of_improvement"]:
-        lines += ["", "## Probability of improvement", "", "Between the top-ranked entries:", ""]
-        lines += markdown_table(["X", "Y", "P(X > Y) [95% CI]", "scenarios"], _improvement_body(b))
+        lines += ["", "## Probability of improvement", "", "Between each ranked entry and the next below it in "
+                  "its division; where the interval includes 0.5 they share a rank:", ""]
+        lines += markdown_table(IMPROVEMENT_HEAD, _improvement_body(b))
     lines += ["", "## How to read it", ""] + explanation(b)
     plots = plot_files(b)
     if plots:
@@ -257,9 +317,13 @@ def render_html(b: dict[str, Any]) -> str:
              '<nav class="tabs">' + "".join(
                  f'<button data-tab="{tid}"{" class=on" if k == 0 else ""}>{e(name)}</button>'
                  for k, (tid, name) in enumerate(tabs)) + "</nav>",
-             '<section class="tab" id="tab-all">',
-             _html_table("board", [c.head for c in cols], [[(c.cell(r), c.value(r)) for c in cols] for r in b["rows"]]),
-             "</section>"]
+             '<section class="tab" id="tab-all">']
+    parts += [f"<p>{_md_inline(note)}</p>" for note in board_notes(b)]
+    for k, (title, rows) in enumerate(division_rows(b)):
+        parts += [f"<h2>Division: {e(title)}</h2>",
+                  _html_table(f"board-{k}", [c.head for c in cols], [[(c.cell(r), c.value(r)) for c in cols] for r in rows])
+                  if rows else "<p>No entry plays this division.</p>"]
+    parts += ["</section>"]
     for t in b["tags"]:
         rows = []
         for r in b["rows"]:
@@ -272,10 +336,11 @@ def render_html(b: dict[str, Any]) -> str:
                               rows), "</section>"]
     parts += [f"<p>{e(note)}</p>" for note in notes(b)]
     if b["probability_of_improvement"]:
-        rows = [[(x, x), (y, y), (ci, p["p"]), (n, p["scenarios"])]
-                for (x, y, ci, n), p in zip(_improvement_body(b), b["probability_of_improvement"])]
-        parts += ["<h2>Probability of improvement</h2>", "<p>Between the top-ranked entries.</p>",
-                  _html_table("improvement", ["X", "Y", "P(X > Y) [95% CI]", "scenarios"], rows)]
+        rows = [[(d, d), (x, x), (y, y), (ci, p["p"]), (n, p["scenarios"]), (t, t)]
+                for (d, x, y, ci, n, t), p in zip(_improvement_body(b), b["probability_of_improvement"])]
+        parts += ["<h2>Probability of improvement</h2>",
+                  "<p>Between each ranked entry and the next below it in its division.</p>",
+                  _html_table("improvement", IMPROVEMENT_HEAD, rows)]
     parts += ["<h2>How to read it</h2>"] + [f"<p>{_md_inline(p)}</p>" for p in explanation(b) if p]
     plots = plot_files(b)
     if plots:

@@ -1,0 +1,103 @@
+"""A board's speed columns, from one timing run on one machine.
+
+Scores are replayed across many runs and processes (resumable, parallel); their wall-clock times are
+not comparable.  So a board's µs/pulse come from one separate run, `deint leaderboard --time`: in one
+process, one policy after another, each warmed up on one untimed episode (numba compiles, caches
+fill), then timed on the first test seed of every scenario of the scope (the policy's own time: reset
+and every act, as `runner.play` measures it).  The row shows the median µs/pulse over those episodes
+and its ratio to `fdp`'s median on the same reference episodes (core-v0's, so blind boards have one
+too), measured in that run.  `timings.json` records the machine and date beside the numbers.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import platform
+import statistics
+from pathlib import Path
+from typing import Any, Iterable, NamedTuple
+
+import numpy as np
+
+from deint_env.errors import DeintError, NotApplicable
+from deint_env.formats.files import write_all
+
+TIMINGS = "timings.json"
+REFERENCE = "fdp"
+REFERENCE_SUITE = "core-v0"
+
+
+class Timing(NamedTuple):
+    policy: str
+    us_per_pulse: float | None  # median over the timed episodes (None: it plays none of them)
+    episodes: int
+
+
+def _episodes(suite: str, scenarios: tuple[str, ...] | None = None) -> list[Any]:
+    from deint_env.simulate import simulate
+    from deint_env.suites import load_suite
+
+    return [simulate(e.spec, e.test.start) for e in load_suite(suite)
+            if scenarios is None or e.name in scenarios]
+
+
+def time_policy(spec: str, episodes: list[Any]) -> Timing:
+    """Median µs/pulse of `spec` over `episodes`, after one untimed episode it can play."""
+    from deint_env.policies import is_oracle, make_policy
+    from deint_env.runner import play
+
+    oracle, warm, us = is_oracle(spec), False, []
+    for episode in episodes:
+        try:
+            if not warm:
+                play(make_policy(spec), episode, oracle=oracle, scored=False)
+                warm = True
+            res = play(make_policy(spec), episode, oracle=oracle, scored=False)
+        except NotApplicable:
+            continue
+        us.append(1e6 * res.seconds / max(len(episode), 1))
+    return Timing(spec, statistics.median(us) if us else None, len(us))
+
+
+def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ...] | None = None,
+        progress: bool = True) -> dict[str, Any]:
+    """Time every spec on the scope's episodes and fdp on the reference episodes; write timings.json."""
+    from deint_env.progress import progress_bar
+
+    specs = list(dict.fromkeys(specs))
+    episodes = _episodes(suite, scenarios)
+    bar = progress_bar(len(specs) + 1, f"timing {suite}", progress)
+    reference = time_policy(REFERENCE, _episodes(REFERENCE_SUITE))
+    bar.update(1)
+    rows = {}
+    for spec in specs:
+        t = time_policy(spec, episodes)
+        rows[spec] = {"us_per_pulse": t.us_per_pulse, "episodes": t.episodes,
+                      "vs_fdp": None if t.us_per_pulse is None else t.us_per_pulse / reference.us_per_pulse}
+        bar.update(1)
+    bar.close()
+    out = {"format": "deint-timings", "suite": suite, "date": datetime.date.today().isoformat(),
+           "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                       "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+                       "python": platform.python_version(), "numpy": np.__version__,
+                       "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
+           "method": "median over the first test seed of each scenario, after one untimed episode; one process",
+           "reference": {"policy": REFERENCE, "suite": REFERENCE_SUITE, "us_per_pulse": reference.us_per_pulse},
+           "policies": rows}
+    write_all([(folder / TIMINGS, json.dumps(out, indent=1, sort_keys=True) + "\n")])
+    return out
+
+
+def read(folder: Path) -> dict[str, Any] | None:
+    path = folder / TIMINGS
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if data.get("format") != "deint-timings" or not isinstance(data.get("policies"), dict):
+            raise ValueError
+    except (OSError, UnicodeDecodeError, ValueError):
+        raise DeintError(f"{path}: is not a timings file; remove it or rerun deint leaderboard --time") from None
+    return data

@@ -920,7 +920,7 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
         folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
                               reps=args.reps, executor=args.executor, address=args.address)
         if args.time:
-            timing.run(folder, scope.suite, [r["policy"] for r in board["rows"] if not r["submitted"]],
+            timing.run(folder, scope.suite, [r["policy"] for r in board["rows"] if not r["submitted"] and r["played"]],
                        scope.scenarios, progress=not args.no_progress)
             board = write(folder, scope, reps=args.reps)
         _leaderboard_report(board, folder)

@@ -76,6 +76,8 @@ def entry_columns(summary: bool = False) -> list[Column]:
     `summary`; the score intervals, which may be missing, and the episode count)."""
     cols = [] if summary else [Column("rank", lambda r: r.get("rank_label") or "-", lambda r: r["rank"])]
     cols += [Column("policy", display_name, lambda r: r["policy"])]
+    if not summary:  # what its results are keyed on: the registry version, a checkpoint's or a preset's hash
+        cols += [Column("version", lambda r: _short(r.get("policy_version")), lambda r: str(r.get("policy_version")))]
     if summary:
         cols += [Column("episodes", lambda r: str(r["episodes"]), lambda r: r["episodes"])]
     cols += [Column(f"{SCORE} {label} [95% CI]", lambda r, k=f"{SCORE}_{name}": interval(r, k),
@@ -88,6 +90,13 @@ def entry_columns(summary: bool = False) -> list[Column]:
                  Column("learned share [95% CI]", _share, lambda r: r.get("learned_share")),
                  Column("test looks", lambda r: num(r.get("test_looks"), "d"), lambda r: r.get("test_looks"))]
     return cols
+
+
+def _short(version: Any) -> str:
+    if version is None:
+        return "-"
+    text = str(version)
+    return text if len(text) <= 14 else text.replace("sha256:", "")[:12] + "..."
 
 
 def _share(row: dict[str, Any]) -> str:

@@ -4,7 +4,8 @@ Scores are replayed across many runs and processes (resumable, parallel); their 
 not comparable.  So a board's µs/pulse come from one separate run, `deint leaderboard --time`: in one
 process, one policy after another, each warmed up on one untimed episode (numba compiles, caches
 fill), then timed on the first test seed of every scenario of the scope (the policy's own time: reset
-and every act, as `runner.play` measures it).  The row shows the median µs/pulse over those episodes
+and every act, as `runner.play` measures it; scenarios longer than `MAX_PULSES` are timed on that many
+pulses).  The row shows the median µs/pulse over those episodes
 and its ratio to `fdp`'s median on the same reference episodes (core-v0's, so blind boards have one
 too), measured in that run.  `timings.json` records the machine and date beside the numbers.
 """
@@ -35,12 +36,15 @@ class Timing(NamedTuple):
     episodes: int
 
 
+MAX_PULSES = 20_000  # a timed episode's length at most: scale-v0's 10^6-pulse episodes take minutes to hours
+
+
 def _episodes(suite: str, scenarios: tuple[str, ...] | None = None) -> list[Any]:
     from deint_env.simulate import simulate
     from deint_env.suites import load_suite
 
-    return [simulate(e.spec, e.test.start) for e in load_suite(suite)
-            if scenarios is None or e.name in scenarios]
+    return [simulate(e.spec.replace(n_pulses=min(e.spec.n_pulses, MAX_PULSES)), e.test.start)
+            for e in load_suite(suite) if scenarios is None or e.name in scenarios]
 
 
 def time_policy(spec: str, episodes: list[Any]) -> Timing:
@@ -83,7 +87,8 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
                        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
                        "python": platform.python_version(), "numpy": np.__version__,
                        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
-           "method": "median over the first test seed of each scenario, after one untimed episode; one process",
+           "method": f"median over the first test seed of each scenario (at most {MAX_PULSES} pulses), after one "
+                     "untimed episode; one process",
            "reference": {"policy": REFERENCE, "suite": REFERENCE_SUITE, "us_per_pulse": reference.us_per_pulse},
            "policies": rows}
     write_all([(folder / TIMINGS, json.dumps(out, indent=1, sort_keys=True) + "\n")])

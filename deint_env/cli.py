@@ -37,75 +37,10 @@ import numpy as np
 from deint_env import formats, tdc_scores
 from deint_env.formats import tdc
 from deint_env.errors import DeintError
+from deint_env.cli_boards import _add_leaderboard, _add_tune
+from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_paths, _Parser, _policy_inputs, _run_policies,
+                                _status)
 from deint_env.results import json_ready  # not from runner, which imports every part of a run
-
-EXIT_ERROR = 2
-EXIT_INTERRUPTED = 130
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line, like every other error of `deint`."""
-
-    def error(self, message: str):
-        self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
-
-
-def _status(text: str) -> None:
-    print(text, file=sys.stderr)
-
-
-def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) -> None:
-    """Fail before anything is read or written when an output's directory is missing, or an output is
-    the same file as an input or another output: by resolved path (symlinks, '..', './'), and for
-    existing files by device and inode (hard links).  Keys are the options that name the paths."""
-    named_in = [(k, p) for k, p in inputs.items() if p]
-    named_out = [(k, p) for k, p in outputs.items() if p]
-    for opt, path in named_out:
-        if not Path(path).resolve().parent.is_dir():
-            raise DeintError(f"{path}: cannot write: directory {Path(path).parent} does not exist")
-    for i, (opt, path) in enumerate(named_out):
-        for other_opt, other in named_in + named_out[:i]:
-            if _same_file(path, other):
-                role = "output" if (other_opt, other) in named_out else "input"
-                raise DeintError(f"{opt} {path} is the same file as the {role} {other_opt} {other}; "
-                                 f"name a different file for each input and output")
-
-
-def _policy_inputs(specs: list[str]) -> dict[str, str]:
-    """The files a policy spec reads, as inputs for `_check_paths`: a parameter naming an existing file
-    (`checkpoint=ck.safetensors`), and the source of a top-level module a parameter names
-    (`model=mymodel:Name`; found without importing it).  `-o ck.safetensors` would replace them."""
-    import importlib.util
-
-    from deint_env.policies import parse_policy_spec
-
-    found: dict[str, str] = {}
-    for spec in specs:
-        try:
-            _, kwargs = parse_policy_spec(spec)
-        except DeintError:
-            continue  # a bad spec is refused, with its own line, where it is built
-        for key, value in kwargs.items():
-            if not isinstance(value, str):
-                continue
-            if os.path.isfile(value):
-                found[f"--policy {key}="] = value
-            module = value.split(":", 1)[0]
-            if ":" in value and module.isidentifier():  # undotted: find_spec imports no parent package
-                origin = getattr(importlib.util.find_spec(module), "origin", None)
-                if origin and os.path.isfile(origin):
-                    found[f"--policy {key}="] = origin
-    return found
-
-
-def _same_file(a: str, b: str) -> bool:
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:  # one of them does not exist (yet): not the same file
-        return False
-
 
 # ---------------------------------------------------------------------------------------------------
 # deint simulate
@@ -443,28 +378,6 @@ def _add_run(sub) -> None:
     p.set_defaults(func=cmd_run)
 
 
-def _run_policies(args: argparse.Namespace) -> list[str]:
-    from deint_env.policies import canonical_spec, parse_policy_spec
-
-    specs = list(args.policy)
-    if args.policies is not None:
-        names = [s.strip() for s in args.policies.split(",")]
-        bad = next((s for s in names if not s or ":" in s or "=" in s), None)
-        if bad is not None:
-            raise DeintError(f"--policies={args.policies!r} is invalid: plain policy names separated by commas; "
-                             f"give a policy with parameters as --policy NAME:key=value,...")
-        specs += names
-    if not specs:
-        raise DeintError("name at least one policy: --policy SPEC (repeatable) or --policies A,B,...")
-    out, seen = [], set()
-    for s in specs:
-        canon = canonical_spec(*parse_policy_spec(s))
-        if canon not in seen:
-            seen.add(canon)
-            out.append(s)
-    return out
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     from deint_env.runner import evaluate, format_table, read_records, resolve_target, summarise
     from deint_env.suites import list_suites, load_suite
@@ -692,45 +605,6 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------------------------
-# deint tune
-# ---------------------------------------------------------------------------------------------------
-def _add_tune(sub) -> None:
-    p = sub.add_parser("tune", help="tune a reference policy's parameters on validation seeds",
-                       description="Choose a reference policy's parameters by successive halving on the validation "
-                                   "seeds of a suite (never a test seed) within a budget of episode plays, and write "
-                                   "the preset that POLICY-tuned:suite=SUITE plays (deint_env/tune.py).  Plays are "
-                                   "kept in the work directory: rerun to resume.")
-    p.add_argument("policy", help="the policy to tune (one with a search space: mht, fdp, dokf, renewal-ml, cdif)")
-    p.add_argument("--suite", required=True, help="the suite whose validation seeds choose")
-    p.add_argument("--division", default="offline", help="online, low-latency or offline (default): the lag bound")
-    p.add_argument("--budget", type=int, default=2000, help="episode plays the search may spend (default 2000)")
-    p.add_argument("--configs", type=int, default=27, help="candidate configurations (default 27)")
-    p.add_argument("--eta", type=int, default=3, help="keep 1/eta per rung, eta times the seeds (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the candidates drawn from the space")
-    p.add_argument("--scenarios", default="", metavar="A,B,...", help="only these scenarios of the suite")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    p.add_argument("--out", metavar="PRESET.json",
-                   help="the preset file (default baselines/presets/POLICY/SUITE.DIVISION.json)")
-    p.add_argument("--work", metavar="DIR", help="the plays' results (default runs/tune/POLICY-SUITE-DIVISION)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=cmd_tune)
-
-
-def cmd_tune(args: argparse.Namespace) -> int:
-    from deint_env.tune import tune
-
-    result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
-                  eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
-                  scenarios=tuple(s for s in args.scenarios.split(",") if s), progress=not args.no_progress,
-                  log=_status)
-    preset = result.preset
-    print(json.dumps({"params": preset["params"], "validation": preset["validation"]}))
-    _status(f"deint: chose {preset['spec']} (validation mean {preset['validation']['mean_score']:.4f} over "
-            f"{preset['validation']['episodes']} episodes) -> {result.path}")
-    return 0
-
-
-# ---------------------------------------------------------------------------------------------------
 # deint dataset
 # ---------------------------------------------------------------------------------------------------
 def _add_dataset(sub) -> None:
@@ -793,163 +667,6 @@ def _add_tdc(sub) -> None:
 def cmd_tdc_convert(args: argparse.Namespace) -> int:
     _check_paths({"INPUT": args.input}, {"OUTPUT": args.output})
     _status("deint: " + tdc.convert(args.input, args.output, "float64" if args.float64 else "float32"))
-    return 0
-
-
-# ---------------------------------------------------------------------------------------------------
-# deint leaderboard
-# ---------------------------------------------------------------------------------------------------
-def _add_leaderboard(sub) -> None:
-    p = sub.add_parser(
-        "leaderboard", help="score policies on a suite's test seeds: tables, plots, a web page; submissions",
-        description="Play every policy on every test episode of a suite and write ROOT/SUITE/: results.jsonl "
-                    "(per episode; an interrupted run resumes from it), leaderboard.json and .csv (normalised "
-                    "score IQM and mean with 95% stratified-bootstrap intervals, accuracy, P_e, V-measure, ARI, "
-                    "per-tag scores, period error vs CRLB, us/pulse, lag, coverage), README.md, index.html and "
-                    "PNG plots; rows ranked within latency divisions (online lag <= 3, low-latency <= 64, offline).  "
-                    "Default policies: every shipped policy in every division it reaches, the suite's tuned presets "
-                    "and each learned entry's ablation (with --all, the ones each leaderboard records).  "
-                    "--time: one timing run (timings.json) for the speed columns.  `deint leaderboard submit` scores "
-                    "labels made elsewhere; `deint leaderboard export` writes a policy's labels in that format.")
-    which = p.add_mutually_exclusive_group()
-    which.add_argument("--suite", help="a suite name (see `deint suites`)")
-    which.add_argument("--all", action="store_true",
-                       help="regenerate every published leaderboard (each suite with a folder under --root holding "
-                            "leaderboard.json), each with the policy specs and scope it records (--policy/--policies: "
-                            "those instead)")
-    p.add_argument("--policy", action="append", default=[], metavar="SPEC",
-                   help="a policy, NAME or NAME:key=value,... (repeatable; default: every reference policy)")
-    p.add_argument("--policies", metavar="A,B,...", help="policies by plain name, comma-separated")
-    p.add_argument("--workers", type=int, metavar="N", help="worker processes (default: every core)")
-    p.add_argument("--root", default="leaderboards", metavar="DIR",
-                   help="the leaderboards folder (default ./leaderboards)")
-    p.add_argument("--scenarios", metavar="A,B,...", help="only these scenarios: a smoke run, not a full leaderboard")
-    p.add_argument("--max-seeds", type=int, metavar="K", help="only the first K test seeds: a smoke run")
-    p.add_argument("--reps", type=int, default=2000, metavar="R", help="bootstrap replicates (default 2000)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="where episodes run: the local process pool (default) or a Ray cluster")
-    p.add_argument("--address", help="the Ray cluster to join (with --executor ray; default: a private one)")
-    p.add_argument("--time", action="store_true",
-                   help="then time every entry in one process, one after another (timings.json: median us/pulse "
-                        "and the ratio to fdp; the board's only speed columns); run it on an idle machine")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    p.set_defaults(func=cmd_leaderboard)
-    actions = p.add_subparsers(dest="action", metavar="ACTION")
-    s = actions.add_parser(
-        "submit", help="score a submission file into a suite's leaderboard",
-        description="Validate FILE (JSON lines or NPZ: the labels of every test episode; format in the README) "
-                    "without executing anything, score it like the reference policies, and add it to ROOT/SUITE "
-                    "as 'NAME (submitted)' (replacing an earlier submission of that name).  A bad file is "
-                    "refused with one line naming the episode and the problem; the leaderboard is unchanged.")
-    s.add_argument("file", metavar="FILE")
-    s.add_argument("--suite", required=True, help="the suite the file labels")
-    s.add_argument("--name", help="the entry's name (default: the file header's name)")
-    s.add_argument("--root", default="leaderboards", metavar="DIR",
-                   help="the leaderboards folder (default ./leaderboards)")
-    s.add_argument("--reps", type=int, default=2000, metavar="R", help="bootstrap replicates (default 2000)")
-    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    s.set_defaults(func=cmd_leaderboard_submit)
-    e = actions.add_parser(
-        "export", help="write a policy's labels of a suite's test episodes as a submission file",
-        description="Play the policy on every test episode of SUITE and write its labels in the submission "
-                    "format: JSON lines, or NPZ when FILE ends in .npz.")
-    e.add_argument("--suite", required=True)
-    e.add_argument("--policy", required=True, metavar="SPEC", help="NAME or NAME:key=value,...")
-    e.add_argument("-o", "--output", required=True, metavar="FILE")
-    e.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    e.add_argument("--scenarios", metavar="A,B,...", help="only these scenarios (matching a smoke-run leaderboard)")
-    e.add_argument("--max-seeds", type=int, metavar="K", help="only the first K test seeds")
-    e.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    e.set_defaults(func=cmd_leaderboard_export)
-
-
-def _scope(suite: str, args: argparse.Namespace):
-    from deint_env.leaderboard import Scope
-
-    names = None
-    if args.scenarios is not None:
-        names = tuple(n.strip() for n in args.scenarios.split(","))
-        if not all(names):
-            raise DeintError(f"--scenarios={args.scenarios!r} is invalid: scenario names separated by commas")
-    if args.max_seeds is not None and args.max_seeds < 1:
-        raise DeintError(f"--max-seeds={args.max_seeds} is invalid: an integer >= 1")
-    return Scope(suite, names, args.max_seeds)
-
-
-def _leaderboard_report(board: dict[str, Any], folder: Path) -> None:
-    from deint_env.leaderboard.render import tidy
-    from deint_env.tables import entry_table
-
-    b = tidy(board)
-    print(f"{b['suite']} (version {b['suite_version']}, hash {b['suite_hash']}), {b['episodes']} test episodes")
-    print(entry_table(b["rows"]))
-    for policy, n in sorted(b["incomplete"].items()):
-        _status(f"deint: warning: {policy} has {n} of {b['episodes']} episodes; it is left out until complete")
-    _status(f"deint: leaderboard of {b['suite']} -> {folder}/ (README.md, index.html, leaderboard.json, .csv, plots)")
-
-
-def _check_reps(reps: int) -> None:
-    from deint_env.stats import MAX_REPS, MIN_REPS
-
-    if not MIN_REPS <= reps <= MAX_REPS:
-        raise DeintError(f"--reps={reps} is invalid: an integer in [{MIN_REPS}, {MAX_REPS}]")
-
-
-def cmd_leaderboard(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import Scope, board_entries, board_policies, build, published_suites, timing, write
-
-    if not args.all and args.suite is None:
-        raise DeintError("name a suite: --suite SUITE, or --all for the published leaderboards")
-    if args.all and (args.scenarios is not None or args.max_seeds is not None):
-        raise DeintError("--all rebuilds each leaderboard at the scope it records; --scenarios and --max-seeds are "
-                         "for one --suite")
-    if args.workers is not None and args.workers < 1:
-        raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
-    _check_reps(args.reps)
-    named = _run_policies(args) if args.policy or args.policies else None
-    if args.all:  # each board as it was built: its own policy specs (parameters included) and scope
-        runs = []
-        for suite in published_suites(args.root):
-            folder = Path(args.root) / suite
-            runs.append((Scope.of_folder(folder, suite), named or board_policies(folder)))
-    else:
-        runs = [(_scope(args.suite, args), named or board_entries(args.suite))]
-    for scope, policies in runs:
-        if args.all:
-            _status(f"deint: {scope.suite}: {len(policies)} policies: {' '.join(policies)}")
-        folder, board = build(scope, policies, workers=args.workers, root=args.root, progress=not args.no_progress,
-                              reps=args.reps, executor=args.executor, address=args.address)
-        if args.time:
-            timing.run(folder, scope.suite, [r["policy"] for r in board["rows"] if not r["submitted"] and r["played"]],
-                       scope.scenarios, progress=not args.no_progress)
-            board = write(folder, scope, reps=args.reps)
-        _leaderboard_report(board, folder)
-    return 0
-
-
-def cmd_leaderboard_submit(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import submit
-
-    _check_reps(args.reps)
-    board_dir = Path(args.root) / args.suite
-    if Path(args.file).resolve().parent == board_dir.resolve():
-        raise DeintError(f"FILE {args.file} lies in the leaderboard directory {board_dir}, whose files submit "
-                         f"rewrites; keep submissions elsewhere")
-    policy, board = submit(args.file, args.suite, args.name, root=args.root, reps=args.reps,
-                           progress=not args.no_progress)
-    _leaderboard_report(board, Path(args.root) / args.suite)
-    _status(f"deint: {args.file} accepted as {policy!r}")
-    return 0
-
-
-def cmd_leaderboard_export(args: argparse.Namespace) -> int:
-    from deint_env.leaderboard import export
-
-    if args.workers < 1:
-        raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
-    _check_paths(_policy_inputs([args.policy]), {"-o": args.output})
-    n = export(_scope(args.suite, args), args.policy, args.output, workers=args.workers, progress=not args.no_progress)
-    _status(f"deint: labels of {n} test episodes of {args.suite} by {args.policy} -> {args.output}")
     return 0
 
 

@@ -1,0 +1,102 @@
+"""What every `deint` subcommand shares: exit codes, the one-line-error parser, status lines, the
+check of output paths against every input, and the policies a command is given."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from deint_env.errors import DeintError
+
+
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors as one line, like every other error of `deint`."""
+
+    def error(self, message: str):
+        self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
+
+
+def _status(text: str) -> None:
+    print(text, file=sys.stderr)
+
+
+def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) -> None:
+    """Fail before anything is read or written when an output's directory is missing, or an output is
+    the same file as an input or another output: by resolved path (symlinks, '..', './'), and for
+    existing files by device and inode (hard links).  Keys are the options that name the paths."""
+    named_in = [(k, p) for k, p in inputs.items() if p]
+    named_out = [(k, p) for k, p in outputs.items() if p]
+    for opt, path in named_out:
+        if not Path(path).resolve().parent.is_dir():
+            raise DeintError(f"{path}: cannot write: directory {Path(path).parent} does not exist")
+    for i, (opt, path) in enumerate(named_out):
+        for other_opt, other in named_in + named_out[:i]:
+            if _same_file(path, other):
+                role = "output" if (other_opt, other) in named_out else "input"
+                raise DeintError(f"{opt} {path} is the same file as the {role} {other_opt} {other}; "
+                                 f"name a different file for each input and output")
+
+
+def _policy_inputs(specs: list[str]) -> dict[str, str]:
+    """The files a policy spec reads, as inputs for `_check_paths`: a parameter naming an existing file
+    (`checkpoint=ck.safetensors`), and the source of a top-level module a parameter names
+    (`model=mymodel:Name`; found without importing it).  `-o ck.safetensors` would replace them."""
+    import importlib.util
+
+    from deint_env.policies import parse_policy_spec
+
+    found: dict[str, str] = {}
+    for spec in specs:
+        try:
+            _, kwargs = parse_policy_spec(spec)
+        except DeintError:
+            continue  # a bad spec is refused, with its own line, where it is built
+        for key, value in kwargs.items():
+            if not isinstance(value, str):
+                continue
+            if os.path.isfile(value):
+                found[f"--policy {key}="] = value
+            module = value.split(":", 1)[0]
+            if ":" in value and module.isidentifier():  # undotted: find_spec imports no parent package
+                origin = getattr(importlib.util.find_spec(module), "origin", None)
+                if origin and os.path.isfile(origin):
+                    found[f"--policy {key}="] = origin
+    return found
+
+
+def _same_file(a: str, b: str) -> bool:
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False
+
+
+
+def _run_policies(args: argparse.Namespace) -> list[str]:
+    from deint_env.policies import canonical_spec, parse_policy_spec
+
+    specs = list(args.policy)
+    if args.policies is not None:
+        names = [s.strip() for s in args.policies.split(",")]
+        bad = next((s for s in names if not s or ":" in s or "=" in s), None)
+        if bad is not None:
+            raise DeintError(f"--policies={args.policies!r} is invalid: plain policy names separated by commas; "
+                             f"give a policy with parameters as --policy NAME:key=value,...")
+        specs += names
+    if not specs:
+        raise DeintError("name at least one policy: --policy SPEC (repeatable) or --policies A,B,...")
+    out, seen = [], set()
+    for s in specs:
+        canon = canonical_spec(*parse_policy_spec(s))
+        if canon not in seen:
+            seen.add(canon)
+            out.append(s)
+    return out

@@ -9,7 +9,6 @@ submissions) and writes the folder's files (see `deint_env.leaderboard`).
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path

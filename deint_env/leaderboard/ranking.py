@@ -43,14 +43,6 @@ class Comparison(NamedTuple):
     tied: bool
 
 
-def seeds_per_scenario(records: list[EpisodeRecord]) -> int:
-    """The fewest episodes any scenario has in the scope (the test seeds a row's interval rests on)."""
-    counts: dict[str, int] = {}
-    for r in records:
-        counts[r.scenario] = counts.get(r.scenario, 0) + 1
-    return min(counts.values()) if counts else 0
-
-
 def rankable(row: dict[str, Any]) -> bool:
     score = row[f"{SCORE}_mean"]
     return (not row["oracle"] and row.get("ablation_of") is None and row["coverage"] >= 1

@@ -221,7 +221,7 @@ def test_render_modes():
     from deint_env.envs import DeinterleaveEnv
 
     with pytest.raises(DeintError, match="render_mode"):
-        DeinterleaveEnv(render_mode="human")
+        DeinterleaveEnv(render_mode="rgb")
 
 
 # ---- lag semantics -----------------------------------------------------------------------------------

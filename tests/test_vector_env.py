@@ -289,7 +289,7 @@ def test_render(mode):
     frames = env.render()
     assert len(frames) == 2
     if mode == "rgb_array":
-        assert all(f.shape == (320, 640, 3) and f.dtype == np.uint8 for f in frames)
+        assert all(f.shape == (480, 720, 3) and f.dtype == np.uint8 for f in frames)
     else:
         assert all(f.startswith("  pulse") and "10 pulses labelled" in f for f in frames)
 

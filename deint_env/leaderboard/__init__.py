@@ -11,6 +11,8 @@ rebuilds every such folder with the policy specs and scope its leaderboard.json 
   probability of improvement between the top entries (JSON);
 - `README.md` (the tables for GitHub, one per latency division), `index.html` (sortable, per-tag tabs,
   no server needed) and the plots (`intervals.png`, `profiles.png`, `pareto.png`, `score_vs_<setting>.png`);
+- `episode-<scenario>.png`: an example episode per scenario (its first validation seed, coloured by the
+  truth), linked from the scenario table of README.md and index.html (`episodes`);
 - `history.json`: every policy version scored on the test seeds (`history`: each row's test looks);
 - `timings.json`: the one timing run the speed columns come from (`timing`, `deint leaderboard --time`).
 
@@ -22,7 +24,8 @@ results and timings gives the same bytes.  Outside labels enter through `submit`
 `deint_env.leaderboard.submit`).  Modules: `build` (running, aggregating through
 `deint_env.aggregate`, the path `deint run`'s summary takes too, with `deint_env.stats`' rliable
 estimates), `render` (JSON, CSV, README, HTML, and publishing every file together), `plots` (PNG),
-`submit` (submissions and `export`).  Columns come from the metric table `deint_env.metrics.METRICS`.
+`episodes` (the example-episode pictures), `submit` (submissions and `export`).  Columns come from the
+metric table `deint_env.metrics.METRICS`.
 """
 
 from deint_env.leaderboard import timing

@@ -215,7 +215,7 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
     """Aggregate `records` (default: the folder's results.jsonl) and publish every file of the folder
     together (`render.publish`: all are staged first, so a failure leaves the old folder as it was),
     holding the results file's writer lock."""
-    from deint_env.leaderboard import plots, render
+    from deint_env.leaderboard import episodes, plots, render
 
     with results_lock(folder / RESULTS):
         records = read_records(folder / RESULTS) if records is None else records
@@ -224,7 +224,8 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
         board, profiles = aggregate(records, scope, reps=reps, current=current)
         looks = history.update(history.read(folder), board["rows"])
         add_looks_and_timings(board, looks, timing.read(folder))
-        files = {RESULTS: results_text(records), history.HISTORY: history.text(looks)}
+        board["examples"], pictures = episodes.examples(scope.entries())
+        files = {RESULTS: results_text(records), history.HISTORY: history.text(looks), **pictures}
         files.update(render.render_all(board))
         files.update(plots.render_all(board, profiles))
         obsolete = [p.name for p in folder.glob("*.png") if p.name not in files]

@@ -1,4 +1,5 @@
-"""The leaderboard as files: leaderboard.json, leaderboard.csv, README.md (GitHub) and index.html.
+"""The leaderboard as files: leaderboard.json, leaderboard.csv, README.md (GitHub) and index.html (both
+with a scenario table linking each scenario's example-episode picture, `episodes`).
 
 Floats are rounded to 6 significant digits and keys sorted, and nothing depends on the clock: only
 the measured `us_per_pulse` can change between two builds from the same results.  index.html is one
@@ -242,6 +243,10 @@ def render_readme(b: dict[str, Any]) -> str:
         lines += ["", "## Probability of improvement", "", "Between each ranked entry and the next below it in "
                   "its division; where the interval includes 0.5 they share a rank:", ""]
         lines += markdown_table(IMPROVEMENT_HEAD, _improvement_body(b))
+    lines += ["", "## Scenarios", "", EXAMPLES_TEXT, ""]
+    lines += markdown_table(["scenario (example episode)", "tags", "validation seed", "pulses drawn"],
+                            [[f"[{x['scenario']}]({x['picture']})", ", ".join(x["tags"]), str(x["seed"]), _drawn(x)]
+                             for x in b["examples"]])
     lines += ["", "## How to read it", ""] + explanation(b)
     plots = plot_files(b)
     if plots:
@@ -281,6 +286,17 @@ document.querySelectorAll(".tabs button").forEach(b => b.addEventListener("click
   document.querySelectorAll(".tab").forEach(s => s.hidden = s.id !== b.dataset.tab);
   document.querySelectorAll(".tabs button").forEach(x => x.classList.toggle("on", x === b));
 }));"""
+
+
+EXAMPLES_TEXT = ("Each scenario's name links a picture of an example episode, its first validation seed (not a "
+                 "test seed the board scores): every received pulse at its TOA (x) against the time since the "
+                 "previous pulse (ΔTOA, y, log scale), coloured by the source that sent it (spurious grey), "
+                 "beside the PRI histogram on the same ΔTOA axis (grey: the ΔTOAs; colours: the intervals "
+                 "between consecutive pulses of each source, a spike at its PRI).")
+
+
+def _drawn(x: dict[str, Any]) -> str:
+    return str(x["pulses"]) if x["pulses"] == x["episode_pulses"] else f"first {x['pulses']} of {x['episode_pulses']}"
 
 
 def _html_table(table_id: str, head: list[str], rows: list[list[tuple[str, Any]]]) -> str:
@@ -341,6 +357,12 @@ def render_html(b: dict[str, Any]) -> str:
         parts += ["<h2>Probability of improvement</h2>",
                   "<p>Between each ranked entry and the next below it in its division.</p>",
                   _html_table("improvement", IMPROVEMENT_HEAD, rows)]
+    parts += ["<h2>Scenarios</h2>", f"<p>{e(EXAMPLES_TEXT)}</p>",
+              '<table id="scenarios"><thead><tr><th>scenario (example episode)</th><th>tags</th>'
+              "<th>validation seed</th><th>pulses drawn</th></tr></thead><tbody>"]
+    parts += [f'<tr><td class="t"><a href="{e(x["picture"])}">{e(x["scenario"])}</a></td><td class="t">'
+              f'{e(", ".join(x["tags"]))}</td><td>{x["seed"]}</td><td>{e(_drawn(x))}</td></tr>' for x in b["examples"]]
+    parts += ["</tbody></table>"]
     parts += ["<h2>How to read it</h2>"] + [f"<p>{_md_inline(p)}</p>" for p in explanation(b) if p]
     plots = plot_files(b)
     if plots:

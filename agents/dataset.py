@@ -35,12 +35,14 @@ from typing import Any, Iterator
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.envs.registration import EnvSpec
 
 from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.envs.mixed import select_entries, split_seeds
 from deint_env.envs.tokens import make_tokens_env
 from deint_env.errors import DeintError
 from deint_env.policies import is_oracle, make_policy
+from deint_env.registration import ENTRY, TOKENS_ID
 from deint_env.runner import play
 from deint_env.simulate import simulate
 
@@ -62,6 +64,19 @@ class DatasetConfig:
     root: Path | None = None  # datasets directory (default: Minari's, MINARI_DATASETS_PATH or ~/.minari/datasets)
 
 
+def recovery_spec(config: DatasetConfig, scenarios: list[str], lag: int) -> EnvSpec:
+    """The env a dataset records as its `env_spec` (Minari's `recover_environment()` makes it): the
+    flavour's env on the dataset's scenarios and split, at the policy's lag; several scenarios are
+    sampled per episode (`deint_env.envs.mixed`), as the token env does with `scenarios=`."""
+    where: dict[str, Any] = {"scenario": scenarios[0]} if len(scenarios) == 1 else {"scenarios": scenarios}
+    kwargs = {**where, "split": config.split, "lag": lag}
+    if config.env == "tokens":
+        return EnvSpec(TOKENS_ID, "deint_env.envs.tokens:make_tokens_env",
+                       kwargs={**kwargs, "max_tracks": config.max_tracks})
+    entry = ENTRY if len(scenarios) == 1 else "deint_env.envs.mixed:MixedScenarioEnv"
+    return EnvSpec("deint_env/Deinterleave-v0", entry, kwargs=kwargs)
+
+
 class DemoEnv(gym.Env):
     """Plays `reset(seed=s, options={"scenario": name})`'s episode with the chosen flavour, and adds
     the label keys to every info (module doc).  Built once per dataset; one inner env per scenario."""
@@ -78,6 +93,7 @@ class DemoEnv(gym.Env):
                 raise DeintError(f"--env raw: {name} has other spaces than {scenarios[0]} (another number of labels); "
                                  "record one number of sources per dataset, or use --env tokens")
         self._env: gym.Env = first
+        self.spec = recovery_spec(config, scenarios, lag)
         self._k = 0
         self._truth = self._reference = np.empty(0, np.int64)
         self._spurious = 0
@@ -190,15 +206,8 @@ def write_dataset(config: DatasetConfig, progress: bool = False):
                     episodes += 1
                     if progress:
                         print(f"  {name} seed {seed}: {len(episode)} pulses", flush=True)
-            eval_env = None
-            if len(scenarios) == 1:
-                eval_env = gym.spec("deint_env/DeinterleaveTokens-v0" if config.env == "tokens" else "deint_env/Deinterleave-v0")
-                kwargs = {"scenario": scenarios[0], "lag": policy.lag}
-                if config.env == "tokens":
-                    kwargs["max_tracks"] = config.max_tracks
-                eval_env = gym.envs.registration.EnvSpec(eval_env.id, eval_env.entry_point, kwargs=kwargs)
-            collector.create_dataset(
-                config.dataset_id, eval_env=eval_env, algorithm_name=f"deint-bench reference policy {config.policy}",
+            collector.create_dataset(  # no eval_env: Minari's recover_environment(eval_env=True) gives env_spec's
+                config.dataset_id, algorithm_name=f"deint-bench reference policy {config.policy}",
                 author="deint-bench", author_email="none", code_permalink="deint dataset",
                 description=(f"{config.policy} playing the first {config.seeds} {config.split} seeds of "
                              f"{', '.join(scenarios)} ({config.env} env, lag {policy.lag}); infos hold pulse, "

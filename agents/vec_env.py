@@ -4,18 +4,46 @@ SB3 resets a finished sub-env within the same step, so the native env runs in Gy
 autoreset mode; the terminal observation SB3 asks for is the all-zero one (after the last label no
 pulse is left to describe, exactly what the features say then).  `env_method("action_masks")` serves
 sb3-contrib's MaskablePPO.
+
+Making one also sets torch to one thread, once per process, unless the user chose a count: the
+track network is small, and on a 2-core machine SB3 trains 5-6x slower with torch's default threads
+(`deint train` sets one thread itself).
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
+import os
+import sys
+
 import numpy as np
+import torch
 from gymnasium.vector import AutoresetMode
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from deint_env.envs.tokens import make_tokens_vector_env
 from deint_env.wrappers import TrackTokensVector
+
+
+# Set by the user: torch (OpenMP, MKL) reads these for its thread count, and we leave it alone.
+THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_threads_decided = False  # once per process: a later torch.set_num_threads(N) of the user's stands
+
+
+def one_torch_thread() -> None:
+    """Set torch to one thread (and say so on stderr) the first time an env is made in this process,
+    unless a THREAD_VARS variable is set or torch already runs one thread."""
+    global _threads_decided
+    if _threads_decided:
+        return
+    _threads_decided = True
+    if any(os.environ.get(v) for v in THREAD_VARS) or torch.get_num_threads() == 1:
+        return
+    torch.set_num_threads(1)
+    print("deint: torch set to 1 thread (SB3 trains the small track network several times faster so on a few "
+          "cores); to choose another count, set OMP_NUM_THREADS=N or call torch.set_num_threads(N) after "
+          "TokenVecEnv.make", file=sys.stderr, flush=True)
 
 
 class TokenVecEnv(VecEnv):
@@ -24,6 +52,7 @@ class TokenVecEnv(VecEnv):
     def __init__(self, env: TrackTokensVector):
         if env.env.unwrapped.metadata["autoreset_mode"] is not AutoresetMode.SAME_STEP:
             raise ValueError("TokenVecEnv needs the native env in SAME_STEP autoreset mode")
+        one_torch_thread()
         self.env = env
         self.render_mode = None
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)

@@ -4,8 +4,6 @@
     env = gym.make("deint_env/Deinterleave-v0", scenario="paper-v0/mk94-three", lag=3)
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
 from deint_env.episode import Episode, Priors, Truth
 from deint_env.errors import DeintError
 from deint_env.policies import Policy, PolicyInfo, list_policies, make_policy, register_policy
@@ -13,16 +11,22 @@ from deint_env.registration import env_ids, register_envs
 from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
 from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import list_suites, load_suite, resolve_scenario
-
-try:
-    __version__ = version("deint-bench")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
-    __version__ = "0+unknown"
+from deint_env.version import __version__
 
 register_envs()
 
+
+def __getattr__(name: str):
+    """`evaluate` and `Evaluation` load on first use: they bring the token features, which `deint --help`
+    and a plain `import deint_env` do not need (start-up time, benchmarks/bench_startup.py)."""
+    if name in ("evaluate", "Evaluation"):
+        from deint_env import evaluation
+
+        return getattr(evaluation, name)
+    raise AttributeError(f"module 'deint_env' has no attribute {name!r}")
+
 __all__ = [
-    "DeintError", "Episode", "Modulation", "Policy", "PolicyInfo", "PriorSpec", "Priors", "Range", "ScenarioSpec",
-    "SourceSpec", "Truth", "env_ids", "list_policies", "list_suites", "load_suite", "make_policy", "register_policy",
-    "resolve_scenario", "simulate", "simulate_many", "__version__",
+    "DeintError", "Episode", "Evaluation", "Modulation", "Policy", "PolicyInfo", "PriorSpec", "Priors", "Range",
+    "ScenarioSpec", "SourceSpec", "Truth", "env_ids", "evaluate", "list_policies", "list_suites", "load_suite",
+    "make_policy", "register_policy", "resolve_scenario", "simulate", "simulate_many", "__version__",
 ]

@@ -121,6 +121,19 @@ class TrackLayout:
             raise DeintError(f"feature layout key {unknown[0]!r} is unknown")
         return cls(**{k: v for k, v in d.items() if k != "layout"})
 
+    @classmethod
+    def from_space(cls, space: spaces.Space) -> TrackLayout | None:
+        """The token (Dict) layout whose observation space is `space`, or None: an agent trained outside
+        deint (an SB3 model) carries only its space.  A flat layout is not recovered: one Box width fits
+        several (track count, look-ahead) pairs."""
+        if not (isinstance(space, spaces.Dict) and "tracks" in space.spaces and len(space["tracks"].shape) == 2
+                and 1 <= space["tracks"].shape[0] <= MAX_TRACKS):
+            return None
+        m = space["tracks"].shape[0]
+        fits = [cls(m, la, False, v) for la in range(MAX_LOOKAHEAD + 1) for v in VERSIONS
+                if cls(m, la, False, v).observation_space() == space]
+        return fits[0] if len(fits) == 1 else None
+
     def check_fits(self, n_labels: int, lag: int, where: str = "scenario") -> None:
         if n_labels > self.max_tracks:
             raise DeintError(f"{where} has {n_labels} label tracks; this feature layout holds at most "

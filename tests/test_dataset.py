@@ -110,3 +110,26 @@ def test_a_failure_midway_leaves_no_dataset(tmp_path, monkeypatch):
     with pytest.raises(DeintError, match="interrupted"):
         write_dataset(DatasetConfig("deint/half-v0", policy="nearest-prior", scenarios=(N2,), seeds=2, root=tmp_path))
     assert list(tmp_path.iterdir()) == []  # no dataset, no temporary directory
+
+
+@pytest.mark.parametrize("env,scenarios", [("raw", (N3,)), ("raw", (N2, "core-v0/core-n2-spread16-jitter0.05")),
+                                           ("tokens", (N2, N3))])
+def test_the_dataset_recovers_its_env(tmp_path, monkeypatch, env, scenarios):
+    """`env_spec` names the flavour's env on the dataset's scenarios and split at the policy's lag, so
+    Minari's recover_environment() plays the dataset's kind of episodes in its spaces."""
+    write_dataset(DatasetConfig("deint/rec-v0", policy="nearest-prior", scenarios=scenarios, seeds=1, env=env,
+                                max_tracks=4, root=tmp_path))
+    dataset = load(tmp_path, "deint/rec-v0", monkeypatch)
+    assert dataset.env_spec is not None
+    recovered = dataset.recover_environment()
+    assert recovered.observation_space == dataset.observation_space
+    assert recovered.action_space == dataset.action_space
+    first = find_entry(scenarios[0]).train.start
+    obs, info = recovered.reset(seed=first if len(scenarios) == 1 else 0)
+    assert f"core-v0/{info['scenario']}" in scenarios
+    if len(scenarios) == 1:  # the dataset's first episode, from its first observation on
+        ep = next(iter(dataset.iterate_episodes()))
+        np.testing.assert_array_equal(obs["toa"], ep.observations["toa"][0])
+        with pytest.raises(DeintError, match="test seed"):  # the dataset's split only
+            recovered.reset(seed=find_entry(scenarios[0]).test.start)
+    recovered.close()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("deint_env", "baselines", "agents")
-ON_TOP = {"deint_env.cli"}  # the command line sits on top of all three packages
+ON_TOP = {"deint_env.cli", "deint_env.cli_import"}  # the command line sits on top of all three packages
 
 
 def modules() -> dict[str, Path]:

@@ -132,6 +132,41 @@ def test_make_vec_gives_the_batched_env_and_make_the_single_one():
     assert env.reset(seed=0)[0]["mask"].tolist() == [1, 1, 0, 0]
 
 
+@pytest.mark.parametrize("kwargs", [dict(suite="core-v0", tags=("jitter",), split="validation", lag=2),
+                                    dict(scenarios=["core-v0/core-n2-spread4-jitter0.05",
+                                                    "core-v0/core-n3-spread4-jitter0.05"], max_tracks=4)])
+def test_make_and_make_vec_take_the_same_keywords_and_play_the_same_episodes(kwargs):
+    """gym.make takes suite=, scenarios=, tags=, split= as gym.make_vec does; reset(seed=s) plays the
+    episode of the vector env's sub-env 0, step for step (a narrower scenario's spurious label is the
+    widest one's, as in the vector env)."""
+    env = gym.make(TOKENS_ID, **kwargs)
+    envs = gym.make_vec(TOKENS_ID, num_envs=2, **kwargs)
+    obs, info = env.reset(seed=4)
+    vobs, vinfo = envs.reset(seed=4)
+    assert f"core-v0/{info['scenario']}" == vinfo["scenario"][0]
+    rng = np.random.default_rng(0)
+    for _ in range(1000 + kwargs.get("lag", 0)):
+        assert all(np.array_equal(obs[k], vobs[k][0]) for k in obs)
+        mask = env.get_wrapper_attr("action_masks")()
+        assert np.array_equal(mask, envs.action_masks()[0])
+        a = int(rng.choice(np.flatnonzero(mask)))
+        obs, r, done, _, _ = env.step(a)
+        vobs, vr, vdone, _, _ = envs.step(np.array([a, 0]))
+        assert (r, done) == (vr[0], vdone[0])
+        if done:
+            break
+    assert done
+    split = kwargs.get("split", "train")
+    entry = find_entry(vinfo["scenario"][0])
+    assert vinfo["episode_seed"][0] in split_seeds(entry, split)
+    with pytest.raises(DeintError, match="not both"):
+        gym.make(TOKENS_ID, scenario="core-v0/core-n2-spread4-jitter0.05", **kwargs)
+    single = dict(scenario="core-v0/core-n2-spread4-jitter0.05", split="validation")  # one scenario: its split only
+    for made in (gym.make(TOKENS_ID, **single), gym.make_vec(TOKENS_ID, num_envs=1, **single)):
+        with pytest.raises(DeintError, match="validation"):
+            made.reset(seed=0)
+
+
 def test_mixed_env_samples_scenarios_and_only_its_split_seeds():
     env = MixedScenarioVectorEnv(8, suite="core-v0", tags=("jitter",), split="train")
     _, info = env.reset(seed=3)

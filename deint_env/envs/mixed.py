@@ -4,15 +4,17 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
+import gymnasium as gym
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
+from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.envs.vector import DeinterleaveVectorEnv
+from deint_env.episode import Episode
 from deint_env.errors import DeintError
-from deint_env.simulate import simulate_many
+from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite
-
 
 
 def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = None,
@@ -42,6 +44,47 @@ def split_seeds(entry: SuiteEntry, split: str) -> range:
     return entry.seeds(split)
 
 
+def widest_entry(entries: list[tuple[str, SuiteEntry]], split: str) -> SuiteEntry:
+    """The entry with the most labels (it sets the action space), after checking `split` and that the
+    entries are all anchored or all blind."""
+    if split not in SPLITS:
+        raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
+    if len({e.spec.blind for _, e in entries}) > 1:
+        raise DeintError("the selected scenarios mix anchored and blind ones; train on one kind at a time")
+    return max((e for _, e in entries), key=lambda e: e.spec.n_labels)
+
+
+def draw_episode(entries: list[tuple[str, SuiteEntry]], split: str, rng: np.random.Generator) -> tuple[int, int]:
+    """(entry index, episode seed): a scenario drawn uniformly, then a seed of its `split`."""
+    e = int(rng.integers(len(entries)))
+    seed_range = split_seeds(entries[e][1], split)
+    return e, seed_range[int(rng.integers(len(seed_range)))]
+
+
+class MixedScenarioEnv(DeinterleaveEnv):
+    """The single env of `MixedScenarioVectorEnv`: each reset draws a scenario of `select_entries(suite,
+    scenarios, tags)` and a seed of its `split` from the env's generator, so `reset(seed=s)` plays the
+    episode sub-env 0 of the vector env plays after `reset(seed=s)`.  The action space is the widest
+    scenario's (label L = spurious for every episode), as in the vector env."""
+
+    def __init__(self, suite: str | None = None, scenarios: Sequence[str] | None = None,
+                 tags: Sequence[str] | None = None, split: str = "train", lag: int = 0,
+                 render_mode: str | None = None, clustering_metrics: bool = True):
+        self.entries = select_entries(suite, scenarios, tags)
+        widest = widest_entry(self.entries, split)
+        super().__init__(widest.spec, lag=lag, render_mode=render_mode, clustering_metrics=clustering_metrics)
+        self.seed_split = split
+        self.scenario_names = [n for n, _ in self.entries]
+
+    def _fits(self, episode: Episode) -> bool:
+        return episode.n_labels <= self.n_labels and episode.blind == self.blind
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        gym.Env.reset(self, seed=seed)  # (re)seeds the draw: DeinterleaveEnv.reset would simulate its own scenario
+        e, episode_seed = draw_episode(self.entries, self.seed_split, self.np_random)
+        return self.load_episode(simulate(self.entries[e][1].spec, episode_seed))
+
+
 class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
     """`DeinterleaveVectorEnv` whose sub-envs draw a scenario and a seed of its `split` per episode.
 
@@ -58,13 +101,8 @@ class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
     def __init__(self, num_envs: int = 1, suite: str | None = None, scenarios: Sequence[str] | None = None,
                  tags: Sequence[str] | None = None, split: str = "train", lag: int = 0,
                  clustering_metrics: bool = False, autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP):
-        if split not in SPLITS:
-            raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
         self.entries = select_entries(suite, scenarios, tags)
-        blind = {e.spec.blind for _, e in self.entries}
-        if len(blind) > 1:
-            raise DeintError("the selected scenarios mix anchored and blind ones; train on one kind at a time")
-        widest = max((e for _, e in self.entries), key=lambda e: e.spec.n_labels)
+        widest = widest_entry(self.entries, split)
         super().__init__(num_envs, scenario=widest.spec, lag=lag, clustering_metrics=clustering_metrics,
                          autoreset_mode=autoreset_mode)
         # The parent's `split` is one scenario's seed ranges (None here); this env's split names the range
@@ -72,19 +110,13 @@ class MixedScenarioVectorEnv(DeinterleaveVectorEnv):
         self.seed_split = split
         self.scenario_names = [n for n, _ in self.entries]
 
-    def seed_range(self, entry: SuiteEntry) -> range:
-        return split_seeds(entry, self.seed_split)
-
     def _start(self, rows: list[int], seeds: list[int | None], infos: dict[str, Any]) -> None:
         picks: list[tuple[int, int]] = []  # (entry index, episode seed) per row
         for i, seed in zip(rows, seeds):
             self.episodes[i] = None
             if seed is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(seed)
-            rng = self._rngs[i]
-            e = int(rng.integers(len(self.entries)))
-            seed_range = self.seed_range(self.entries[e][1])
-            picks.append((e, seed_range[int(rng.integers(len(seed_range)))]))
+            picks.append(draw_episode(self.entries, self.seed_split, self._rngs[i]))
         episodes: list[Any] = [None] * len(rows)
         for e in sorted({p[0] for p in picks}):  # one simulate_many call per scenario
             at = [j for j, p in enumerate(picks) if p[0] == e]

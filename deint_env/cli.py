@@ -38,6 +38,8 @@ from deint_env import formats, tdc_scores
 from deint_env.formats import tdc
 from deint_env.errors import DeintError
 from deint_env.cli_boards import _add_leaderboard, _add_tune
+from deint_env.cli_import import _add_import_sb3
+from deint_env.cli_plot import _add_plot
 from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_paths, _Parser, _policy_inputs, _run_policies,
                                 _status)
 from deint_env.results import json_ready  # not from runner, which imports every part of a run
@@ -677,7 +679,7 @@ def cmd_tdc_convert(args: argparse.Namespace) -> int:
 # `cmd_*(args) -> int`.
 SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_score, _add_run, _add_suites,
                                             _add_policies, _add_leaderboard, _add_reproduce, _add_train, _add_tune,
-                                            _add_dataset, _add_tdc]
+                                            _add_dataset, _add_import_sb3, _add_tdc, _add_plot]
 
 
 def build_parser() -> argparse.ArgumentParser:

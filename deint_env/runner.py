@@ -50,6 +50,7 @@ from deint_env.simulate import simulate
 from deint_env.stats import MIN_SEEDS, have_rliable
 from deint_env.suites import SPLITS, find_entry, list_suites, load_suite
 from deint_env.tables import entry_table
+from deint_env.version import __version__
 
 EXECUTORS = ("local", "ray")
 
@@ -153,15 +154,21 @@ def resolve_target(target: str) -> list[tuple[str | None, str | None, Any]]:
 
 
 def make_jobs(policies: Iterable[str], target: str, split: str = "test", max_seeds: int | None = None) -> list[Job]:
-    if split not in SPLITS:
-        raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
-    if max_seeds is not None and (not isinstance(max_seeds, int) or isinstance(max_seeds, bool) or max_seeds < 1):
-        raise DeintError(f"max_seeds={max_seeds!r} is invalid: an integer >= 1 (or None: every seed)")
     canon = []
     for p in policies:
         name, kwargs = parse_policy_spec(p)
         policy = make_policy(p)  # fail now, with one line, on an unknown policy or parameter
         canon.append((canonical_spec(name, kwargs), spec_version(p, policy)))
+    return target_jobs(canon, target, split, max_seeds)
+
+
+def target_jobs(canon: list[tuple[str, int | str]], target: str, split: str = "test",
+                max_seeds: int | None = None) -> list[Job]:
+    """The jobs of every (policy name, version) in `canon` on every seed of `target`'s `split`."""
+    if split not in SPLITS:
+        raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
+    if max_seeds is not None and (not isinstance(max_seeds, int) or isinstance(max_seeds, bool) or max_seeds < 1):
+        raise DeintError(f"max_seeds={max_seeds!r} is invalid: an integer >= 1 (or None: every seed)")
     jobs = []
     for suite, suite_hash, entry in resolve_target(target):
         seeds = list(entry.seeds(split))
@@ -180,13 +187,13 @@ def one_line(e: BaseException) -> str:
     return type(e).__name__ + (f": {text[0]}" if text else "")
 
 
-def _record(job: Job, spec: ScenarioSpec, **fields: Any) -> EpisodeRecord:
-    from deint_env import __version__
-
+def _record(job: Job, spec: ScenarioSpec, oracle: bool | None = None, **fields: Any) -> EpisodeRecord:
+    """`oracle`: None reads the registry (a policy given as an object is named by the caller, not registered)."""
     return EpisodeRecord(
         policy=job.policy, scenario=spec.name, scenario_hash=spec.content_hash, seed=job.seed, split=job.split,
         suite=job.suite, suite_hash=job.suite_hash, tags=tuple(job.tags), settings=job.settings,
-        oracle=is_oracle(job.policy), version=__version__, policy_version=job.policy_version, **fields)
+        oracle=is_oracle(job.policy) if oracle is None else oracle, version=__version__,
+        policy_version=job.policy_version, **fields)
 
 
 def fault_record(job: Job, error: str) -> EpisodeRecord:
@@ -220,23 +227,28 @@ def _warm_up(job: Job, spec: ScenarioSpec, episode: Episode) -> None:
         pass
 
 
-def run_job(job: Job) -> EpisodeRecord:
+def run_job(job: Job, policy: Policy | None = None) -> EpisodeRecord:
     """Play one job and return its record.  A policy's exception (or a bad label) is its fault on this
     episode: recorded, not raised.  The time recorded is the policy's compute time (`play`), after a
-    warm-up play in a process that has not played the policy on this scenario yet (`_warm_up`)."""
+    warm-up play in a process that has not played the policy on this scenario yet (`_warm_up`).
+    `policy`: an object to play instead of building `job.policy` from the registry (`job.policy` is then
+    only its name; it is not an oracle and gets no warm-up: rebuilding it is the registry's job)."""
     spec = ScenarioSpec.from_dict(job.scenario)
     episode = simulate(spec, job.seed)
     n_sources = episode.truth.n_sources
     lag = None
-    _warm_up(job, spec, episode)
+    oracle = False if policy is not None else is_oracle(job.policy)
+    if policy is None:
+        _warm_up(job, spec, episode)
     try:
-        policy = make_policy(job.policy)
+        if policy is None:
+            policy = make_policy(job.policy)
         lag = policy.lag
-        res = play(policy, episode, policy_seed=job.seed, oracle=is_oracle(job.policy))
+        res = play(policy, episode, policy_seed=job.seed, oracle=oracle)
     except NotApplicable as e:  # outside the policy's scope: recorded, so a rerun does not retry it
-        return _record(job, spec, lag=lag, n_sources=n_sources, applicable=False, reason=str(e))
+        return _record(job, spec, oracle, lag=lag, n_sources=n_sources, applicable=False, reason=str(e))
     except Exception as e:  # noqa: BLE001 -- any failure of the policy is recorded for its episode
-        return _record(job, spec, lag=lag, n_sources=n_sources, fault=one_line(e))
+        return _record(job, spec, oracle, lag=lag, n_sources=n_sources, fault=one_line(e))
     genie_acc, random_acc = reference_accuracies(episode)
     metrics: dict[str, Any] = dict(res.metrics)
     metrics.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
@@ -248,7 +260,7 @@ def run_job(job: Job) -> EpisodeRecord:
             mapping = _label_of_source(res.labels, lut, episode.truth.n_sources, episode.n_labels)
         metrics.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
     metrics["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
-    return _record(job, spec, lag=lag, n_sources=n_sources, metrics=json_ready(metrics))
+    return _record(job, spec, oracle, lag=lag, n_sources=n_sources, metrics=json_ready(metrics))
 
 
 def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_labels: int) -> np.ndarray:
@@ -352,24 +364,41 @@ def _pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pool.shutdown()
 
 
+def _next_job(queue: deque[Job], running: Iterable[Job], played: set[str]) -> Job | None:
+    """Take from `queue` the first job that may start now: one whose policy has finished a job in this
+    pool (`played`: its kernels are compiled and cached) or has none in flight.  While a worker compiles a
+    policy's numba kernels (seconds to a minute in a fresh clone), another worker that started the same
+    policy would compile them too; it plays other policies' jobs instead.  None: every queued job waits."""
+    busy = {j.policy for j in running} - played
+    for i, job in enumerate(queue):
+        if job.policy not in busy:
+            del queue[i]
+            return job
+    return None
+
+
 def _run_pool(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None]) -> None:
-    """Play the jobs on a process pool, at most two per worker in flight.  A worker that dies breaks
-    the pool and fails every job in flight; those are then replayed one by one, each in a pool of its
-    own, so that only the job that kills its worker gets the fault."""
+    """Play the jobs on a process pool, at most two per worker in flight (`_next_job` chooses which).  A
+    worker that dies breaks the pool and fails every job in flight; those are then replayed one by one,
+    each in a pool of its own, so that only the job that kills its worker gets the fault."""
     queue, window = deque(todo), 2 * workers
+    played: set[str] = set()
     while queue:
         suspects: list[Job] = []
         with _pool(workers) as pool:
             running: dict[Any, Job] = {}
             while queue or running:
                 while queue and len(running) < window and not suspects:
-                    job = queue.popleft()
+                    job = _next_job(queue, running.values(), played)
+                    if job is None:
+                        break
                     running[pool.submit(run_job, job)] = job
                 if not running:
                     break
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for f in done:
                     job = running.pop(f)
+                    played.add(job.policy)
                     try:
                         keep(f.result())
                     except BrokenProcessPool:

@@ -141,17 +141,31 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     ## Arguments
     `scenario`: a ScenarioSpec, its dict, or a scenario name ("suite/scenario" or a unique bare name;
-    default "paper-v0/mk94-two-var1").  `lag`: decision delay D >= 0.  `render_mode`: None, "ansi"
-    or "rgb_array".  `clustering_metrics`: whether the metrics include the clustering scores
-    (V-measure, ARI, AMI, ...; True; computed with numpy from the contingency table, ~0.3 ms for a
-    500-pulse episode).  `split`: None, "train", "validation" or "test": play only that split's seeds of a suite
+    default "paper-v0/mk94-two-var1").  `lag`: decision delay D >= 0.  `render_mode`: None, "ansi",
+    "human" or "rgb_array" (see Rendering).  `clustering_metrics`: whether the metrics include the
+    clustering scores (V-measure, ARI, AMI, ...; True; computed with numpy from the contingency table,
+    ~0.3 ms for a 500-pulse episode).  `split`: None, "train", "validation" or "test": play only that split's seeds of a suite
     scenario; a reset with any other seed raises `DeintError`.
+
+    ## Rendering
+    Only pulses already labelled are drawn, so rendering never shows the truth of a pending pulse.
+    - "ansi": `render()` returns a text table of the last labelled pulses, label beside truth.
+    - "rgb_array": `render()` returns a 480x720x3 uint8 frame: each labelled pulse at its TOA (x) against
+      its ΔTOA, the time since the previous received pulse (y, log scale), coloured by the agent's labels
+      (left panel) and by the true sources (middle; spurious grey), beside a PRI histogram on the same
+      ΔTOA axis (grey: ΔTOAs; coloured: intervals between consecutive pulses given the same label).
+    - "human": the same frame in a matplotlib window (the `plot` extra), drawn by `reset()` and every
+      `step()` at most `render_fps` times a second; `render()` returns None and `close()` closes the
+      window.  Under a file-only backend (MPLBACKEND=Agg) frames are drawn and nothing is shown.
 
     ## Version History
     - v0: initial release.
+    - v0, later: the rgb_array frame became the ΔTOA-against-TOA picture with a PRI histogram, and
+      render_mode "human" was added (rendering only: dynamics, spaces and rewards are unchanged, so
+      the id stays v0).
     """
 
-    metadata = {"render_modes": ["ansi", "rgb_array"], "render_fps": 30}
+    metadata = {"render_modes": ["ansi", "human", "rgb_array"], "render_fps": 30}
 
     def __init__(self, scenario: ScenarioSpec | str | dict | None = DEFAULT_SCENARIO, lag: int = 0,
                  render_mode: str | None = None, clustering_metrics: bool = True, split: str | None = None, *,
@@ -170,8 +184,14 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         self.split = split_seeds(scenario, self.spec_scenario, split)
         self.lag = check_lag(lag)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise DeintError(f"render_mode={render_mode!r} is invalid: None, 'ansi' or 'rgb_array'")
+            raise DeintError(f"render_mode={render_mode!r} is invalid: None, 'ansi', 'human' or 'rgb_array'")
         self.render_mode = render_mode
+        # human: matplotlib is checked now (one clear line), its window opens at the first frame
+        self._window = None
+        if render_mode == "human":
+            from deint_env.envs.render import Window
+
+            self._window = Window(self.metadata["render_fps"])
         self.clustering_metrics = clustering_metrics
         self.n_labels = self.spec_scenario.n_labels if self.spec_scenario is not None else int(n_labels)
         self.blind = self.spec_scenario.blind if self.spec_scenario is not None else blind
@@ -210,7 +230,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
     def load_episode(self, episode: Episode) -> tuple[dict[str, Any], dict[str, Any]]:
         """Play a given episode (simulated, or read from a pulse file) from its first pulse; returns
         the first observation and the reset info, like `reset`."""
-        if episode.n_labels != self.n_labels or episode.blind != self.blind:
+        if not self._fits(episode):
             raise DeintError(f"episode has {episode.n_labels} labels (blind={episode.blind}); this env expects "
                              f"{self.n_labels} (blind={self.blind})")
         self.episode = episode
@@ -237,7 +257,12 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         self._step_info = reset_info | {"priors": _placeholder(reset_info["priors"])}
         self._step_arrays = [k for k, v in self._step_info["priors"].items() if type(v) is np.ndarray]
         reset_info["metrics"] = _placeholder(self._pending)
+        if self.render_mode == "human":
+            self.render()
         return self._observation(0), reset_info
+
+    def _fits(self, episode: Episode) -> bool:
+        return episode.n_labels == self.n_labels and episode.blind == self.blind
 
     def step(self, action):
         if self.episode is None or self._step >= self._n + self.lag:
@@ -267,6 +292,8 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         else:
             info["metrics"] = pending = self._pending.copy()
             pending["pe"] = pending["pe"].copy()
+        if self.render_mode == "human":
+            self.render()
         return self._observation(self._step), reward, terminated, False, info
 
     def _is_correct(self, j: int, a: int) -> bool:
@@ -309,16 +336,29 @@ class DeinterleaveEnv(gym.Env[dict, int]):
                 "has_amplitude": self.episode.amplitude is not None, "scenario": self.episode.scenario}
 
     def render(self):
+        """ansi: a text table of the last labelled pulses; rgb_array: the ΔTOA-against-TOA picture of the
+        labelled pulses (`deint_env.envs.render.render_rgb`); human: that picture in a window (returns
+        None; reset() and step() call it).  Pending pulses are never drawn: their truth stays hidden."""
         if self.render_mode is None:
-            gym.logger.warn("render() needs render_mode='ansi' or 'rgb_array' at construction")
+            gym.logger.warn("render() needs render_mode='ansi', 'human' or 'rgb_array' at construction")
             return None
-        from deint_env.envs.render import render_ansi, render_rgb
-
         done = max(0, min(self._step - self.lag, self._n)) if self.episode is not None else 0
         ep = self.episode
         args = (ep.toa[:done], self.labels[:done], ep.source[:done], self.n_labels) if ep is not None else (
             np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int32), self.n_labels)
-        return render_ansi(*args) if self.render_mode == "ansi" else render_rgb(*args)
+        from deint_env.envs.render import render_ansi, render_rgb
+
+        if self.render_mode == "ansi":
+            return render_ansi(*args)
+        frame = render_rgb(*args)
+        if self._window is None:
+            return frame
+        self._window.show(frame)
+        return None
+
+    def close(self):
+        if self._window is not None:
+            self._window.close()
 
 
 def _placeholder(d: dict[str, Any]) -> dict[str, Any]:

@@ -28,6 +28,19 @@ from deint_env.labels import correct_anchored, correct_link, true_predecessors
 # ---------------------------------------------------------------------------------------------------
 # per-episode label metrics
 # ---------------------------------------------------------------------------------------------------
+# The keys `label_metrics` returns, in its order (tests/test_labels_metrics.py holds them equal), stated
+# so that an env can lay out its info before any labelling without computing one (a probe would import
+# scipy.optimize: 0.4 s of every `deint label`).
+LABEL_KEYS = ("n_pulses", "accuracy", "matched_accuracy", "link_accuracy", "mean_pe", "pe", "spurious_precision",
+              "spurious_recall")
+CLUSTERING_KEYS = ("v_measure", "homogeneity", "completeness", "ari", "ami", "cluster_mcc", "cluster_f1")
+
+
+def metric_keys(clustering: bool = True) -> tuple[str, ...]:
+    """The keys of `label_metrics(..., clustering=clustering)`."""
+    return LABEL_KEYS + CLUSTERING_KEYS if clustering else LABEL_KEYS
+
+
 def label_metrics(labels: np.ndarray, source: np.ndarray, mask: np.ndarray, n_labels: int, blind: bool,
                   clustering: bool = True) -> dict[str, float]:
     """All label metrics of one episode.  `labels` has one entry per pulse (n_labels = spurious)."""

@@ -378,3 +378,15 @@ def test_labels_match_reference_on_simulated_episodes(seed):
         assert np.array_equal(correct_anchored(labels, ep.source, ep.mask, 5),
                               reference_anchored(labels, ep.source, ep.mask, 5))
     assert correct_anchored(perfect, ep.source, ep.mask, 5).all()
+
+
+@pytest.mark.parametrize("blind", [False, True])
+@pytest.mark.parametrize("clustering", [False, True])
+def test_metric_keys_are_what_label_metrics_returns(blind, clustering):
+    """The stated keys (an env's info layout before any labelling) are label_metrics' own, in order."""
+    from deint_env.metrics import label_metrics, metric_keys
+
+    source = np.array([0, 1, -1, 0, 1], np.int32)
+    labels = np.array([0, 1, 2, 1, 1])
+    mask = np.where(source >= 0, np.left_shift(1, np.maximum(source, 0)), 0).astype(np.uint64)
+    assert tuple(label_metrics(labels, source, mask, 2, blind, clustering=clustering)) == metric_keys(clustering)

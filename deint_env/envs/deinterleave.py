@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import functools
 import math
 from typing import Any, NamedTuple
 
@@ -14,7 +13,7 @@ from gymnasium import spaces
 from deint_env.episode import Episode
 from deint_env.errors import DeintError
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
-from deint_env.metrics import label_metrics
+from deint_env.metrics import label_metrics, metric_keys
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite, resolve_scenario
@@ -321,7 +320,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         return m
 
     def _placeholder_metrics(self) -> dict[str, Any]:
-        keys = _metric_keys(self.blind, self.clustering_metrics)
+        keys = (*metric_keys(self.clustering_metrics), "lag")
         out: dict[str, Any] = dict.fromkeys(keys, -math.inf)
         out.update(n_pulses=0, pe=np.full(self._n_sources, -math.inf), lag=self.lag)
         return out
@@ -365,13 +364,6 @@ def _placeholder(d: dict[str, Any]) -> dict[str, Any]:
     """A fresh copy of `d` with every float, and every float array's entries, -inf."""
     return {k: np.full_like(v, -math.inf) if type(v) is np.ndarray and v.dtype.kind == "f"
             else -math.inf if type(v) is float else v for k, v in d.items()}
-
-
-@functools.cache
-def _metric_keys(blind: bool, clustering: bool) -> tuple[str, ...]:
-    """The keys `label_metrics` returns (and `lag`), read once from a one-pulse labelling."""
-    one = np.zeros(1, np.int64)
-    return (*label_metrics(one, one.astype(np.int32), np.ones(1, np.uint64), 1, blind, clustering=clustering), "lag")
 
 
 def _info_metrics(m: dict[str, Any]) -> dict[str, Any]:

@@ -96,6 +96,13 @@ POLICIES = (
                description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)"),
     PolicyInfo("hdbscan", "baselines.blind.clustering:HDBSCANPolicy", modes=BLIND,
                description="blind: scikit-learn HDBSCAN on pulse descriptors (the TDC baseline's method)"),
+    # pulse descriptor words (frequency, pulse width, AoA per pulse; issue #28): TOA-only scenarios are not applicable
+    PolicyInfo("pdw-hdbscan", "baselines.pdw.hdbscan:PDWHDBSCANPolicy", modes=BLIND,
+               description="blind, PDWs: the Turing Deinterleaving Challenge's baseline, HDBSCAN on the raw PDWs "
+                           "of 1024-pulse windows (scale=robust: median/IQR-scaled)"),
+    PolicyInfo("pdw-pipeline", "baselines.pdw.pipeline:PDWPipelinePolicy", modes=BLIND,
+               description="blind, PDWs: the classical EW pipeline, HDBSCAN cells on frequency/PW/AoA, PRI "
+                           "analysis + sequence search within each, agile emitters' cells merged (lag 10000)"),
     # tuned references (issue #23): parameters chosen by `deint tune` on a suite's validation seeds, read from
     # baselines/presets/BASE/SUITE.DIVISION.json (division= picks one; default offline); results are keyed on
     # the preset (the instance's version); a board plays every preset made for its suite (variants)

@@ -6,9 +6,9 @@
 
 from deint_env.episode import Episode, Priors, Truth
 from deint_env.errors import DeintError
-from deint_env.policies import Policy, PolicyInfo, list_policies, make_policy, register_policy
+from deint_env.policies import BatchPolicy, Policy, PolicyInfo, list_policies, make_policy, register_policy
 from deint_env.registration import env_ids, register_envs
-from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
+from deint_env.scenario import DescriptorSpec, Modulation, PriorSpec, Range, ReceiverSpec, ScenarioSpec, SourceSpec
 from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import list_suites, load_suite, resolve_scenario
 from deint_env.version import __version__
@@ -26,7 +26,8 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'deint_env' has no attribute {name!r}")
 
 __all__ = [
-    "DeintError", "Episode", "Evaluation", "Modulation", "Policy", "PolicyInfo", "PriorSpec", "Priors", "Range",
-    "ScenarioSpec", "SourceSpec", "Truth", "env_ids", "evaluate", "list_policies", "list_suites", "load_suite",
-    "make_policy", "register_policy", "resolve_scenario", "simulate", "simulate_many", "__version__",
+    "BatchPolicy", "DeintError", "DescriptorSpec", "Episode", "Evaluation", "Modulation", "Policy", "PolicyInfo",
+    "PriorSpec", "Priors", "Range", "ReceiverSpec", "ScenarioSpec", "SourceSpec", "Truth", "env_ids", "evaluate",
+    "list_policies", "list_suites", "load_suite", "make_policy", "register_policy", "resolve_scenario", "simulate",
+    "simulate_many", "__version__",
 ]

@@ -51,7 +51,10 @@ def _add_simulate(sub) -> None:
     p = sub.add_parser(
         "simulate", help="simulate one episode of a scenario into a pulse file",
         description="Simulate episode SEED of SCENARIO and write it as a pulse file (toa[,amplitude],source"
-                    "[,sources]).  --priors-out writes the public priors a policy is given for this episode "
+                    "[,sources]), or, for an -o ending .h5/.hdf5 or with --format tdc, as a Turing "
+                    "Deinterleaving Challenge file (float64 data: time_of_arrival and every descriptor the "
+                    "episode has, frequency, pulse_width, angle_of_arrival, amplitude; labels: the sources, "
+                    "-1 spurious).  --priors-out writes the public priors a policy is given for this episode "
                     "(for a scenario with explicit or perturbed priors these are NOT the true parameters); "
                     "--true-priors-out writes the true periods and phases with the channel statistics, "
                     "which is what `deint label --policy genie` needs to label as the oracle does (exactly "
@@ -65,6 +68,8 @@ def _add_simulate(sub) -> None:
     p.add_argument("--true-priors-out", metavar="TRUE.json",
                    help="also write the true parameters (periods, phases, channel statistics) for genie")
     p.add_argument("--no-truth", action="store_true", help="leave out the source (truth) columns")
+    p.add_argument("--format", choices=("csv", "tdc"), default=None,
+                   help="the pulse file's format (default: by the suffix of -o, .h5/.hdf5 = tdc, else csv)")
     p.set_defaults(func=cmd_simulate)
 
 
@@ -91,7 +96,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     spec = _scenario(args.scenario)
     episode = simulate(spec, args.seed)
     # Every output is formatted (and so validated) before any is written.
-    outputs = [(args.output, formats.format_pulses(episode, truth=not args.no_truth))]
+    if args.format == "tdc" or (args.format is None and tdc.is_tdc_path(args.output)):
+        train = tdc.train_from_episode(episode, truth=not args.no_truth)
+        outputs = [(args.output, train.to_bytes("float64", where=args.output))]
+    else:
+        if episode.descriptors:
+            _status(f"deint: a CSV pulse file holds toa and amplitude; {', '.join(episode.descriptors)} left out "
+                    f"(-o FILE.h5 or --format tdc keeps them)")
+        outputs = [(args.output, formats.format_pulses(episode, truth=not args.no_truth))]
     if args.priors_out:
         outputs.append((args.priors_out, formats.format_priors(episode.priors, where=args.priors_out)))
     if args.true_priors_out:

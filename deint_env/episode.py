@@ -11,6 +11,9 @@ import numpy as np
 from deint_env.errors import DeintError
 
 
+DESCRIPTORS = ("frequency", "pulse_width", "aoa")  # Episode's optional pulse descriptor arrays
+# Priors' emitter library: each descriptor's per-track mean and spread (MHz, us, degrees)
+LIBRARY = ("frequency", "frequency_std", "pulse_width", "pulse_width_std", "aoa", "aoa_std")
 SCALARS = ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate", "coincidence_resolution")
 RATES = ("missing_prob", "spurious_rate")  # NaN = unknown (a policy estimates it), distinct from 0
 # Numbers a priors file may hold, in any time unit: the trackers square and multiply them (a jitter of
@@ -30,6 +33,8 @@ class Priors:
     `spurious_rate` is in spurious pulses per source pulse.  `modulation` (None: not given) names
     each track's PRI modulation where the priors know it (`PriorSpec.modulation`): its kind and its
     deterministic parameters, never an episode's own draws (a sinusoid's phase, a drift's path).
+    `frequency` (MHz), `pulse_width` (us), `aoa` (degrees) and their `_std`s (None: not given): each
+    track's pulse descriptor means and spreads, as an emitter library states them.
     """
 
     n_labels: int
@@ -47,6 +52,12 @@ class Priors:
     amplitude: np.ndarray | None = None
     amplitude_std: np.ndarray | None = None
     modulation: tuple[Any, ...] | None = None  # per track a `scenario.Modulation` or None (not named)
+    frequency: np.ndarray | None = None
+    frequency_std: np.ndarray | None = None
+    pulse_width: np.ndarray | None = None
+    pulse_width_std: np.ndarray | None = None
+    aoa: np.ndarray | None = None
+    aoa_std: np.ndarray | None = None
 
     @property
     def spurious_label(self) -> int:
@@ -68,6 +79,9 @@ class Priors:
             out["amplitude_std"] = np.array(self.amplitude_std, dtype=np.float64)
         if self.modulation is not None:
             out["modulation"] = _modulation_json(self.modulation)
+        for name in LIBRARY:
+            if getattr(self, name) is not None:
+                out[name] = np.array(getattr(self, name), dtype=np.float64)
         return out
 
     @classmethod
@@ -78,7 +92,7 @@ class Priors:
         if not isinstance(blind, (bool, np.bool_)):
             raise DeintError(f"priors: blind={blind!r} must be true or false")
         kw = {k: info[k] for k in ("n_labels", "blind", *SCALARS) if k in info}
-        for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std"):
+        for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std", *LIBRARY):
             if info.get(k) is not None:
                 kw[k] = np.asarray(info[k], dtype=np.float64)
         if info.get("modulation") is not None:
@@ -105,6 +119,9 @@ class Priors:
             out["amplitude_std"] = self.amplitude_std.tolist()
         if self.modulation is not None:
             out["modulation"] = _modulation_json(self.modulation)
+        for name in LIBRARY:
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name).tolist()
         return out
 
     @classmethod
@@ -113,7 +130,7 @@ class Priors:
         if not isinstance(d, dict):
             raise DeintError(f"{where}: must be a JSON object with at least 'period'")
         allowed = {"period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std",
-                   "modulation", "blind", "label_budget", *SCALARS}
+                   "modulation", "blind", "label_budget", *SCALARS, *LIBRARY}
         unknown = sorted(set(d) - allowed)
         if unknown:
             raise DeintError(f"{where}: key {unknown[0]!r} is unknown; allowed: {', '.join(sorted(allowed))}")
@@ -171,6 +188,15 @@ class Priors:
             raise DeintError(f"{where}: source_prob must sum to 1, got {prob.sum():g}")
         amplitude = vector("amplitude", n, True)
         amplitude_std = vector("amplitude_std", n, True)
+        library = {}
+        for name in LIBRARY[::2]:  # each descriptor's mean and spread come together
+            mean, std = vector(name, n, name != "aoa"), vector(f"{name}_std", n, True)
+            if (mean is None) != (std is None):
+                raise DeintError(f"{where}: {name} and {name}_std go together (a track's mean and its spread); "
+                                 f"got only {name if std is None else name + '_std'}")
+            if name == "aoa" and mean is not None and not np.all((mean >= 0) & (mean <= 360)):
+                raise DeintError(f"{where}: aoa must be degrees in [0, 360], got {mean.tolist()!r}"[:300])
+            library.update({name: mean, f"{name}_std": std})
         rate = 1.0 / period
         return cls(
             n_labels=n,
@@ -184,6 +210,7 @@ class Priors:
             amplitude_std=amplitude_std if amplitude_std is not None else (
                 None if amplitude is None else 0.1 * amplitude),
             modulation=None if d.get("modulation") is None else _parse_modulation(d["modulation"], n, where),
+            **library,
             **_scalars(),
         )
 
@@ -250,8 +277,10 @@ class Episode:
 
     toa: sorted float64 times of arrival.  amplitude: float64 or None.  source: the primary source of
     each received pulse (int32, -1 = spurious).  mask: uint64 bit mask of every source merged into the
-    pulse (0 for a spurious pulse).  truth: see `Truth` (None for files without truth).  priors: what a
-    policy is told.
+    pulse (0 for a spurious pulse; sources 64 and up, which never merge, have no bit: `source` names
+    them).  truth: see `Truth` (None for files without truth).  priors: what a policy is told.
+    frequency (MHz), pulse_width (us), aoa (degrees in [0, 360)): the pulse descriptor words, float64
+    arrays like `toa`, or None where the scenario (or file) has none.
     """
 
     scenario: str
@@ -262,6 +291,9 @@ class Episode:
     mask: np.ndarray
     truth: Truth | None
     priors: Priors
+    frequency: np.ndarray | None = None
+    pulse_width: np.ndarray | None = None
+    aoa: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.toa.size)
@@ -269,6 +301,11 @@ class Episode:
     @property
     def n_labels(self) -> int:
         return self.priors.n_labels
+
+    @property
+    def descriptors(self) -> dict[str, np.ndarray]:
+        """The pulse descriptor arrays it has, by name (in DESCRIPTORS order)."""
+        return {name: getattr(self, name) for name in DESCRIPTORS if getattr(self, name) is not None}
 
     @property
     def blind(self) -> bool:

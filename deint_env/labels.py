@@ -19,13 +19,23 @@ NO_PRED = -1  # "no predecessor": the first pulse of a source, or a label's firs
 SPURIOUS_PRED = -2  # the pulse was labelled spurious: it links to nothing
 
 
+def source_bits(source: np.ndarray) -> np.ndarray:
+    """The uint64 membership mask of unmerged pulses: bit i for source i < 64; 0 for a spurious pulse
+    and for sources 64 and up (which never merge, so their `source` names them)."""
+    s = np.asarray(source, dtype=np.int64)
+    bit = (s >= 0) & (s < 64)
+    return np.where(bit, np.left_shift(np.uint64(1), np.where(bit, s, 0).astype(np.uint64)), np.uint64(0))
+
+
 def correct_anchored(labels: np.ndarray, source: np.ndarray, mask: np.ndarray, spurious_label: int) -> np.ndarray:
-    """Boolean array: is each anchored label right?"""
+    """Boolean array: is each anchored label right?  (Sources 64 and up have no mask bit and never
+    merge: their pulses are right under their primary source.)"""
     lab = np.asarray(labels, dtype=np.int64)
-    track = (lab >= 0) & (lab < min(spurious_label, 64))
-    shift = np.where(track, lab, 0).astype(np.uint64)
+    bit = (lab >= 0) & (lab < min(spurious_label, 64))
+    shift = np.where(bit, lab, 0).astype(np.uint64)
     has_bit = (np.right_shift(mask, shift) & np.uint64(1)).astype(bool)
-    return np.where(lab == spurious_label, source < 0, track & has_bit)
+    primary = (lab >= 64) & (lab < spurious_label) & (lab == source)
+    return np.where(lab == spurious_label, source < 0, (bit & has_bit) | primary)
 
 
 @dataclass(frozen=True, eq=False)

@@ -62,7 +62,7 @@ def label_metrics(labels: np.ndarray, source: np.ndarray, mask: np.ndarray, n_la
     }
     # P_e^i (MK94 eq. 5.1): the share of source i's pulses not attributed to it.  In blind mode the
     # labels are first mapped to sources by the Hungarian matching.
-    pe = per_source_error(anchored, mask)
+    pe = per_source_error(anchored, mask, source)
     out["mean_pe"] = float(np.nanmean(pe)) if np.any(np.isfinite(pe)) else math.nan
     out["pe"] = [None if not np.isfinite(v) else float(v) for v in pe]
     true_spur, said_spur = source < 0, labels == spur
@@ -74,20 +74,23 @@ def label_metrics(labels: np.ndarray, source: np.ndarray, mask: np.ndarray, n_la
     return out
 
 
-def per_source_error(correct: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """P_e^i for every source bit present in `mask` (NaN for a source with no pulse)."""
-    k = _n_sources(mask)
+def per_source_error(correct: np.ndarray, mask: np.ndarray, source: np.ndarray | None = None) -> np.ndarray:
+    """P_e^i for every source bit present in `mask`, and every source in `source` (sources 64 and up,
+    which have no bit), NaN for a source with no pulse."""
+    k = n_sources(source, mask)
     pe = np.full(k, np.nan)
     for i in range(k):
-        has = (np.right_shift(mask, np.uint64(i)) & np.uint64(1)).astype(bool)
+        has = (np.right_shift(mask, np.uint64(i)) & np.uint64(1)).astype(bool) if i < 64 else source == i
         if has.any():
             pe[i] = 1.0 - float(np.mean(correct[has]))
     return pe
 
 
-def _n_sources(mask: np.ndarray) -> int:
+def n_sources(source: np.ndarray | None, mask: np.ndarray) -> int:
+    """How many sources an episode's truth numbers: the highest mask bit or source, plus one."""
     allbits = int(np.bitwise_or.reduce(mask)) if mask.size else 0
-    return allbits.bit_length()
+    top = int(source.max()) + 1 if source is not None and source.size else 0
+    return max(allbits.bit_length(), top)
 
 
 def matched_labels(labels: np.ndarray, source: np.ndarray, n_labels: int) -> np.ndarray:

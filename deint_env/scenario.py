@@ -21,7 +21,8 @@ import numpy as np
 
 from deint_env.errors import DeintError, check
 
-MAX_SOURCES = 64  # merged-pulse membership is a uint64 bit mask
+MAX_SOURCES = 128  # the TSRD's scenes hold up to 90 emitters
+MAX_MERGING_SOURCES = 64  # merged-pulse membership is a uint64 bit mask: merging scenes stop at 64
 # One time scale per scenario (ScenarioSpec._check_time_scales): the published suites span periods
 # 0.125-160, phases within 5 periods and jitter within 10 of the smallest period
 MIN_PERIOD, MAX_PERIOD, MAX_PERIOD_RATIO = 1e-9, 1e12, 1e4
@@ -101,6 +102,10 @@ def _param_mean(p: Param) -> float:
 
 def _param_low(p: Param) -> float:
     return p.low if isinstance(p, Range) else p
+
+
+def _param_high(p: Param) -> float:
+    return p.high if isinstance(p, Range) else p
 
 
 def _floats(value: Any, what: str) -> tuple[float, ...]:
@@ -284,6 +289,132 @@ class Modulation:
             return 1.0 - self.depth
         return 1.0  # drifting: a guess; the generator doubles its count when it falls short
 
+SCANS = ("none", "circular", "sector")  # DescriptorSpec.scan
+BEAMS = ("gaussian", "sinc2")  # main-lobe shapes of an emitter's or a scanning receiver's antenna
+RECEIVER_MODES = ("staring", "scanning")  # ReceiverSpec.mode
+
+
+def _check_beam(what: str, beamwidth: float, beam: str, sidelobe_db: float) -> None:
+    """An antenna pattern: its main lobe's 3 dB width, shape and sidelobe floor."""
+    check(0 < beamwidth <= 180, f"{what}.beamwidth", beamwidth, "the main lobe's 3 dB width in degrees, in (0, 180]")
+    check(beam in BEAMS, f"{what}.beam", beam, f"one of {', '.join(BEAMS)}")
+    check(-120 <= sidelobe_db < 0, f"{what}.sidelobe_db", sidelobe_db,
+          "the sidelobe floor in dB below the main lobe's peak, in [-120, 0)")
+
+
+def _levels_tuple(value: Any, what: str, positive: bool) -> tuple[float, ...]:
+    v = _floats(value, what)
+    check(len(v) != 1 and (not positive or all(x > 0 for x in v)), what, value,
+          "empty (none) or at least two " + ("positive " if positive else "") + "numbers")
+    return v
+
+
+@dataclass(frozen=True)
+class DescriptorSpec:
+    """An emitter's pulse descriptor words beside its TOAs (units: frequency MHz, pulse width us,
+    angles degrees, times in the scenario's TOA unit -- us in the TSRD's convention).
+
+    frequency: centre frequency (number or Range drawn per episode); frequency_std: its pulse-to-pulse
+    jitter; frequency_hops: offsets from the centre, one drawn uniformly per pulse (empty: no hopping).
+    pulse_width (number or Range); pulse_width_levels: multipliers of it, one drawn uniformly per
+    pulse (empty: a fixed width).  aoa: angle of arrival (number or Range; None: uniform in [0, 360));
+    aoa_rate: its drift in degrees per TOA unit (number or Range, e.g. Range(-r, r)).
+    scan: the emitter's antenna.  "none": its main beam stays on the receiver (gain 1); "circular": it
+    turns once per `scan_period`, so the receiver hears a burst as the main beam sweeps past and the
+    sidelobes between; "sector": it sweeps a `sector` degrees wide back and forth (one period out and
+    back), the receiver's bearing somewhere inside it (drawn per episode).  beamwidth: the main lobe's
+    3 dB width; beam: its shape (gaussian, or sinc^2 with its own sidelobes); sidelobe_db: the floor of
+    the pattern.  The received amplitude is the source's `amplitude` (its ERP less range loss) times
+    the beam gain (times a scanning receiver's own, see ReceiverSpec).
+    """
+
+    frequency: Param = 10_000.0
+    frequency_std: float = 0.0
+    frequency_hops: tuple[float, ...] = ()
+    pulse_width: Param = 1.0
+    pulse_width_levels: tuple[float, ...] = ()
+    aoa: Param | None = None
+    aoa_rate: Param = 0.0
+    scan: str = "none"
+    scan_period: Param = 0.0
+    sector: float = 0.0
+    beamwidth: float = 3.0
+    beam: str = "gaussian"
+    sidelobe_db: float = -30.0
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "frequency", _param(self.frequency, "descriptors.frequency", positive=True))
+        set_(self, "frequency_std", _number(self.frequency_std, "descriptors.frequency_std", 0.0))
+        set_(self, "frequency_hops", _levels_tuple(self.frequency_hops, "descriptors.frequency_hops", False))
+        set_(self, "pulse_width", _param(self.pulse_width, "descriptors.pulse_width", positive=True))
+        set_(self, "pulse_width_levels", _levels_tuple(self.pulse_width_levels, "descriptors.pulse_width_levels",
+                                                       True))
+        if self.aoa is not None:
+            set_(self, "aoa", _param(self.aoa, "descriptors.aoa"))
+            lo, hi = (self.aoa.low, self.aoa.high) if isinstance(self.aoa, Range) else (self.aoa, self.aoa)
+            check(0 <= lo and hi <= 360, "descriptors.aoa", self.aoa, "degrees in [0, 360] (None: uniform)")
+        set_(self, "aoa_rate", _param(self.aoa_rate, "descriptors.aoa_rate"))
+        check(self.scan in SCANS, "descriptors.scan", self.scan, f"one of {', '.join(SCANS)}")
+        set_(self, "scan_period", _param(self.scan_period, "descriptors.scan_period", nonneg=True))
+        scans = self.scan != "none"
+        check(_param_low(self.scan_period) > 0 if scans else self.scan_period == 0, "descriptors.scan_period",
+              self.scan_period, f"{self.scan} scan needs " + ("a period > 0 (TOA units)" if scans else "0"))
+        set_(self, "sector", _number(self.sector, "descriptors.sector", 0.0, 360.0))
+        check(0 < self.sector < 360 if self.scan == "sector" else self.sector == 0, "descriptors.sector",
+              self.sector, "a sector scan needs its width in (0, 360) degrees" if self.scan == "sector"
+              else "0 (only a sector scan has a sector)")
+        for name in ("beamwidth", "sidelobe_db"):
+            set_(self, name, _number(getattr(self, name), f"descriptors.{name}"))
+        _check_beam("descriptors", self.beamwidth, self.beam, self.sidelobe_db)
+
+    def frequency_span(self) -> tuple[float, float]:
+        """The frequencies its pulses may take before noise (centre range plus hops)."""
+        lo, hi = _param_low(self.frequency), _param_high(self.frequency)
+        hops = self.frequency_hops or (0.0,)
+        return lo + min(hops), hi + max(hops)
+
+    def pulse_width_span(self) -> tuple[float, float]:
+        levels = self.pulse_width_levels or (1.0,)
+        return _param_low(self.pulse_width) * min(levels), _param_high(self.pulse_width) * max(levels)
+
+
+@dataclass(frozen=True)
+class ReceiverSpec:
+    """The receiver of a scenario with pulse descriptors.
+
+    mode: "staring" (fixed gain 1 in every direction) or "scanning" (its look direction turns once per
+    `scan_period`, from a direction drawn per episode; its gain is its beam pattern -- `beamwidth`,
+    `beam`, `sidelobe_db` as in DescriptorSpec -- at the angle between the look direction and the
+    pulse's AoA).  threshold: a pulse whose received amplitude (before measurement noise) is below it
+    is not detected: a missing pulse.  frequency_noise_std (MHz), pulse_width_noise_std (us),
+    aoa_noise_std (degrees): the receiver's measurement noise on each descriptor.
+    """
+
+    mode: str = "staring"
+    threshold: float = 0.0
+    frequency_noise_std: float = 0.0
+    pulse_width_noise_std: float = 0.0
+    aoa_noise_std: float = 0.0
+    scan_period: float = 0.0
+    beamwidth: float = 0.0
+    beam: str = "gaussian"
+    sidelobe_db: float = -30.0
+
+    def __post_init__(self) -> None:
+        check(self.mode in RECEIVER_MODES, "receiver.mode", self.mode, f"one of {', '.join(RECEIVER_MODES)}")
+        for name in ("threshold", "frequency_noise_std", "pulse_width_noise_std", "aoa_noise_std", "scan_period",
+                     "beamwidth"):
+            object.__setattr__(self, name, _number(getattr(self, name), f"receiver.{name}", 0.0))
+        object.__setattr__(self, "sidelobe_db", _number(self.sidelobe_db, "receiver.sidelobe_db"))
+        if self.mode == "scanning":
+            check(self.scan_period > 0, "receiver.scan_period", self.scan_period,
+                  "a scanning receiver needs a period > 0 (TOA units)")
+            _check_beam("receiver", self.beamwidth, self.beam, self.sidelobe_db)
+        else:
+            check(self.scan_period == 0 and self.beamwidth == 0, "receiver.scan_period",
+                  (self.scan_period, self.beamwidth), "scan_period and beamwidth are for mode='scanning' only")
+
 
 @dataclass(frozen=True)
 class SourceSpec:
@@ -293,7 +424,8 @@ class SourceSpec:
     Range; None = uniform in [0, period)).  amplitude / amplitude_std: mean emitted amplitude and its
     pulse-to-pulse fluctuation.  active: on-windows [start, stop) as fractions of the nominal episode
     duration H0 = n_pulses / sum_i(1/T_i); empty = always on; a last window with stop >= 1 stays open
-    to the end of the episode (use windows for dropout and onset).
+    to the end of the episode (use windows for dropout and onset).  descriptors: its pulse
+    descriptor words (frequency, pulse width, AoA, antenna scan; see DescriptorSpec), None: TOAs only.
     """
 
     period: Param
@@ -302,6 +434,7 @@ class SourceSpec:
     amplitude: Param = 1.0
     amplitude_std: float = 0.0
     active: tuple[tuple[float, float], ...] = ()
+    descriptors: DescriptorSpec | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "period", _param(self.period, "source.period", positive=True))
@@ -322,6 +455,10 @@ class SourceSpec:
         check(all(a[1] <= b[0] for a, b in zip(windows, windows[1:])), "source.active", self.active,
               "windows must be sorted and must not overlap")
         object.__setattr__(self, "active", tuple(windows))
+        if isinstance(self.descriptors, dict):
+            object.__setattr__(self, "descriptors", _from_dict(DescriptorSpec, self.descriptors, "descriptors"))
+        check(self.descriptors is None or isinstance(self.descriptors, DescriptorSpec), "source.descriptors",
+              self.descriptors, "a DescriptorSpec or null")
 
 
 # DM89 section 4's fourth-order ARMA channel V(z) = B(z^-1) / A(z^-1), the front end's default.
@@ -388,6 +525,10 @@ class PriorSpec:
     `modulation`: the priors name each source's PRI modulation (an emitter library's entry): its kind
     and the spec's parameters (pattern, depth, cycle, alpha, drift_std), never what an episode draws
     (a sinusoid's phase, a drift's path); phantom tracks of explicit priors name none.
+    `descriptors` (perturbed priors of a scenario with pulse descriptors): the priors also hold each
+    source's descriptor means and spreads, as an emitter library does: the episode's drawn centre
+    frequency (plus its mean hop), pulse width (times its mean level) and initial AoA, with spreads
+    from its jitter, hops, levels, drift over the episode and the receiver's measurement noise.
     """
 
     kind: str = "perturbed"
@@ -400,6 +541,7 @@ class PriorSpec:
     phase_error: float | None = 0.0
     source_prob: tuple[float, ...] = ()
     modulation: bool = False
+    descriptors: bool = False
 
     def __post_init__(self) -> None:
         check(self.kind in PRIOR_KINDS, "priors.kind", self.kind, f"one of {', '.join(PRIOR_KINDS)}")
@@ -428,6 +570,9 @@ class PriorSpec:
                   self.source_prob, "positive values summing to 1")
         check(isinstance(self.modulation, bool) and not (self.modulation and self.kind == "none"),
               "priors.modulation", self.modulation, "true or false (false for kind='none': blind priors name nothing)")
+        check(isinstance(self.descriptors, bool) and not (self.descriptors and self.kind != "perturbed"),
+              "priors.descriptors", self.descriptors, "true or false (true only for kind='perturbed', whose "
+              "tracks are the sources)")
 
 
 @dataclass(frozen=True)
@@ -449,7 +594,10 @@ class ScenarioSpec:
     the action then names one of `label_budget` labels and is rewarded per link.  n_active: in blind
     mode, the number of sources (the first k of `sources`) drawn per episode from [lo, hi].
     waveform: an optional DM89 front end (see WaveformSpec): n_pulses pulses enter the receiver and
-    the episode holds what the detector makes of them.
+    the episode holds what the detector makes of them.  receiver: the receiver of a scenario whose
+    sources carry pulse descriptor words (see ReceiverSpec; None with descriptors: a staring receiver
+    without threshold or measurement noise).  Descriptors are all or none: every source has them or
+    none does, and they need amplitudes=true.
     """
 
     name: str
@@ -468,6 +616,7 @@ class ScenarioSpec:
     label_budget: int = 0
     n_active: tuple[int, int] | None = None
     waveform: WaveformSpec | None = None
+    receiver: ReceiverSpec | None = None
     description: str = ""
 
     def __post_init__(self) -> None:
@@ -527,6 +676,7 @@ class ScenarioSpec:
         if isinstance(self.priors, dict):
             object.__setattr__(self, "priors", _from_dict(PriorSpec, self.priors, "priors"))
         check(isinstance(self.priors, PriorSpec), "priors", self.priors, "a PriorSpec")
+        self._check_descriptors(srcs)
         always = len(srcs)  # the sources every episode plays
         if self.blind:
             check(self.priors.kind == "none", "priors.kind", self.priors.kind, "blind scenarios take kind='none'")
@@ -554,6 +704,32 @@ class ScenarioSpec:
         check(any(not s.active or s.active[-1][1] >= 1.0 for s in srcs[:always]), "source.active",
               [list(map(list, s.active)) for s in srcs[:always]],
               "a source every episode plays must stay on to the end (no windows, or a last window with stop >= 1)")
+
+    def _check_descriptors(self, srcs: tuple[SourceSpec, ...]) -> None:
+        """Descriptors all or none (one observation layout per scenario), the receiver with them, and
+        merging only where the membership bit mask holds every source."""
+        if isinstance(self.receiver, dict):
+            object.__setattr__(self, "receiver", _from_dict(ReceiverSpec, self.receiver, "receiver"))
+        check(self.receiver is None or isinstance(self.receiver, ReceiverSpec), "receiver", self.receiver,
+              "a ReceiverSpec or null")
+        has = [s.descriptors is not None for s in srcs]
+        check(all(has) or not any(has), "source.descriptors", f"{sum(has)} of {len(srcs)} sources",
+              "every source or none (one observation layout per scenario)")
+        check(any(has) or not self.priors.descriptors, "priors.descriptors", self.priors.descriptors,
+              "false: the sources have no pulse descriptors")
+        if any(has):
+            check(self.amplitudes, "amplitudes", self.amplitudes, "true: a pulse descriptor word carries an amplitude")
+            check(self.waveform is None, "waveform", self.waveform, "null: the waveform front end keeps TOAs only")
+        else:
+            check(self.receiver is None, "receiver", self.receiver, "null: a receiver needs sources with descriptors")
+        merges = self.coincidence_resolution > 0 or self.waveform is not None
+        check(not merges or len(srcs) <= MAX_MERGING_SOURCES, "sources", len(srcs),
+              f"at most {MAX_MERGING_SOURCES} where pulses merge (coincidence_resolution > 0 or a waveform front "
+              f"end): a merged pulse's sources are a 64-bit mask")
+
+    @property
+    def has_descriptors(self) -> bool:
+        return self.sources[0].descriptors is not None
 
     def _check_time_scales(self, srcs: tuple[SourceSpec, ...]) -> None:
         """Periods, phases and jitter on one time scale: the simulator sizes each source's schedule by the

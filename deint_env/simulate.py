@@ -3,7 +3,9 @@
 Order of effects, as a receiver sees them: each source emits on its own (modulated, cumulatively
 jittered) schedule inside its on-windows; each emission is independently missed with
 `missing_prob`; the survivors get white Gaussian TOA noise (sigma_w); a Poisson stream of spurious
-pulses is added; everything is sorted by TOA; pulses closer than `coincidence_resolution` to their
+pulses is added; with pulse descriptors (`ScenarioSpec.receiver`, `sim.descriptors`) every pulse gets
+its frequency, pulse width and AoA, its amplitude the antennas' gains, and the pulses below the
+receiver's threshold are lost; everything is sorted by TOA; pulses closer than `coincidence_resolution` to their
 predecessor merge into it (earlier TOA, summed amplitude, every source in the bit mask; with
 `merge="emission"` the noise-free arrivals are compared instead, see `sim.merging.merge_at_emission`); the first
 `n_pulses` are kept; amplitude measurement noise is added.
@@ -29,6 +31,7 @@ detections.
 
 The parts, in `deint_env.sim`: `streams` (the random streams and their batched seeding), `schedule`
 (the sources' draws and noise-free emissions), `impairments` (misses, TOA noise, spurious pulses),
+`descriptors` (pulse descriptor words, antenna scans, the receiver's threshold),
 `merging` (coincident pulses), `truth` and `priors` (what an episode knows and tells a policy), `rows`
 (row helpers).  This module runs them in order, batch by batch.
 """
@@ -45,6 +48,7 @@ from deint_env.episode import Episode, Truth
 from deint_env.errors import DeintError
 from deint_env.receiver import detect_pulses
 from deint_env.scenario import ScenarioSpec, SourceSpec
+from deint_env.sim.descriptors import draw_emitters, heard_fraction
 from deint_env.sim.impairments import receive
 from deint_env.sim.merging import MergedRow, merge
 from deint_env.sim.priors import episode_priors
@@ -66,6 +70,7 @@ class _Generated(NamedTuple):
     source: np.ndarray
     mask: np.ndarray
     amplitude: np.ndarray | list[None]
+    descriptors: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None]  # frequency, pulse width, AoA
     truths: list[Truth]
 
 
@@ -125,8 +130,12 @@ def _simulate_group(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], seeds: 
     rate = (1.0 / period).sum(axis=1)
     pmin = phase.min(axis=1)
     g = Draws(seeds, period, phase, amp_mean, h0=spec.n_pulses / rate, spur_intensity=spec.spurious_rate * rate,
-               t_start=np.where(pmin > 0.0, 0.0, pmin))  # min(phase.min(), 0.0)
-    received_rate = rate * (1.0 - spec.missing_prob) + g.spur_intensity
+               t_start=np.where(pmin > 0.0, 0.0, pmin),  # min(phase.min(), 0.0)
+               emitters=draw_emitters(sources, seeds) if spec.has_descriptors else None)
+    heard = rate
+    if spec.receiver is not None and spec.receiver.threshold > 0:  # the threshold thins the sources' pulses
+        heard = np.maximum((heard_fraction(spec, sources, g.emitters, amp_mean) / period).sum(axis=1), 0.05 * rate)
+    received_rate = heard * (1.0 - spec.missing_prob) + g.spur_intensity
     # merging thins the stream (math.exp per episode: np.exp may round differently)
     received_rate *= [math.exp(-r * spec.coincidence_resolution) for r in received_rate.tolist()]
     horizon = phase.max(axis=1) + (1.15 * spec.n_pulses + 20) / received_rate
@@ -145,9 +154,11 @@ def _simulate_group(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], seeds: 
         batch = g if rows.size == len(seeds) else g.take(rows)
         out = _generate(spec, sources, batch, horizon)
         done = out.done
-        for j, t, s, m, a, truth in zip(rows[done].tolist(), out.toa, out.source, out.mask, out.amplitude, out.truths):
+        for j, t, s, m, a, desc, truth in zip(rows[done].tolist(), out.toa, out.source, out.mask, out.amplitude,
+                                              out.descriptors, out.truths):
+            f, w, aoa = desc if desc is not None else (None, None, None)
             episodes[j] = Episode(scenario=spec.name, seed=seeds[j], toa=t, amplitude=a, source=s, mask=m,
-                                  truth=truth, priors=priors[j])
+                                  truth=truth, priors=priors[j], frequency=f, pulse_width=w, aoa=aoa)
         rows, horizon = rows[~done], horizon[~done] * 2
         size = max(1, _BATCH_PULSES // (spec.n_pulses << (doublings + 1)))
         todo += [(rows[a:a + size], horizon[a:a + size], doublings + 1) for a in range(0, rows.size, size)]
@@ -168,12 +179,12 @@ def _generate(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], g: Draws, hor
     m = np.maximum(((horizon[:, None] - g.phase) / (g.period * min_ratio)).astype(np.int64) + 16, 1)
     sched = [emissions(src, g.period[:, i], g.phase[:, i], g.amp_mean[:, i], m[:, i], spec.pri_jitter_std, g.h0,
                         horizon, g.seeds, i, spec.amplitudes) for i, src in enumerate(sources)]
-    y, amp, col_src = receive(spec, g, horizon, sched)
+    y, amp, col_src, desc = receive(spec, g, horizon, sched)
 
     # --- sort each row; past `complete`, emissions after the horizon (not generated) could still
     # have landed, so only the pulses before it count ---
-    bit_of = np.left_shift(np.uint64(1), np.arange(k + 1, dtype=np.uint64))
-    bit_of[k] = 0  # source -1 (spurious): no bit
+    bit_of = np.left_shift(np.uint64(1), np.minimum(np.arange(k + 1), 63).astype(np.uint64))
+    bit_of[min(k, 64):] = 0  # source -1 (spurious), and sources past the 64-bit mask (they never merge): no bit
     # The stable sort merges the few time-ordered runs (one per source, one of spurious pulses) fast;
     # with many runs numpy's SIMD default sort is faster.  Without ties every sort gives the same
     # order; with ties (exact coincidences without jitter) only the stable one is platform-independent.
@@ -220,26 +231,32 @@ def _generate(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], g: Draws, hor
     # slices then gather without copying rows first.
     plain = slice(None) if d.size == n_rows and not merged_d.size else d[~merged[d]]
     head = order[plain, :n]
+    desc = () if desc is None else tuple(desc)
     if merged_d.size:
         toa_d, src_d = np.empty((d.size, n)), np.empty((d.size, n), np.int32)
         mask_d, amp_d = np.empty((d.size, n), np.uint64), None if amp is None else np.empty((d.size, n))
+        desc_d = [np.empty((d.size, n)) for _ in desc]
         rest = (~merged[d]).nonzero()[0]
         toa_d[rest], src_d[rest] = toa[plain, :n], col_src[head]
         mask_d[rest] = bit_of[src_d[rest]]
         if amp is not None:
             amp_d[rest] = take_rows(amp[plain], head)
+        for x, x_d in zip(desc, desc_d):
+            x_d[rest] = take_rows(x[plain], head)
     else:
         toa_d, src_d = np.ascontiguousarray(toa[plain, :n]), col_src[head]
         mask_d = bit_of[src_d]
         amp_d = None if amp is None else take_rows(amp[plain], head)
+        desc_d = [take_rows(x[plain], head) for x in desc]
     for j in merged_d.tolist():
         r, c = d[j], cut[d[j]]
         o = order[r, :c]
         src = col_src[o]
         first = runs[r] if r in runs else starts[r, :c].nonzero()[0]
         merge(toa[r, :c], src, bit_of[src], None if amp is None else amp[r][o], first,
-              MergedRow(toa_d[j], src_d[j], mask_d[j], None if amp_d is None else amp_d[j]))
-    del order, head, toa, amp
+              MergedRow(toa_d[j], src_d[j], mask_d[j], None if amp_d is None else amp_d[j],
+                        tuple(x_d[j] for x_d in desc_d)), tuple(x[r][o] for x in desc))
+    del order, head, toa, amp, desc
     if spec.amplitudes and spec.amplitude_noise_std > 0:
         z = np.empty(amp_d.shape)
         fill([z], [g.seeds[r] for r in d.tolist()], AMPLITUDE_NOISE)
@@ -249,4 +266,5 @@ def _generate(spec: ScenarioSpec, sources: tuple[SourceSpec, ...], g: Draws, hor
     t_end[d] = toa_d[:, -1] + 8 * spec.toa_jitter_std + spec.coincidence_resolution
     out_truths = truths(g.period[d], g.phase[d], [e.t for e in sched], [e.pri for e in sched], d, t_end, src_d, mask_d,
                         merged_d.size > 0)
-    return _Generated(done, toa_d, src_d, mask_d, [None] * d.size if amp_d is None else amp_d, out_truths)
+    return _Generated(done, toa_d, src_d, mask_d, [None] * d.size if amp_d is None else amp_d,
+                      list(zip(*desc_d)) if desc_d else [None] * d.size, out_truths)

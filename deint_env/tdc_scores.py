@@ -17,6 +17,7 @@ import numpy as np
 
 from deint_env import clustering
 from deint_env.errors import DeintError
+from deint_env.labels import source_bits
 from deint_env.scenario import MAX_SOURCES
 
 
@@ -47,7 +48,7 @@ def tdc_scores(labels_true: np.ndarray, labels_pred: np.ndarray, default_label: 
 
 def score_labels(pred: np.ndarray, truth: np.ndarray, n_labels: int | None = None) -> dict[str, Any]:
     """Score predicted ids against TDC truth ids (negative = spurious / noise, both sides) in blind
-    mode: our label metrics when the truth has at most 64 emitters (else the clustering metrics
+    mode: our label metrics when the truth has at most 128 emitters (else the clustering metrics
     alone); the cluster-wise MCC/F1 there are the TDC's own (`metrics.clusterwise_mcc_f1`)."""
     from deint_env.metrics import clustering_metrics, label_metrics
 
@@ -63,10 +64,8 @@ def score_labels(pred: np.ndarray, truth: np.ndarray, n_labels: int | None = Non
     source = np.where(truth >= 0, np.searchsorted(emitters, truth), -1).astype(np.int32)
     out: dict[str, Any] = {"n_labels": int(n_labels), "blind": True, "n_emitters": int(emitters.size)}
     if emitters.size <= MAX_SOURCES:
-        mask = np.zeros(source.size, dtype=np.uint64)
-        real = source >= 0
-        mask[real] = np.left_shift(np.uint64(1), source[real].astype(np.uint64))
+        mask = source_bits(source)
         out.update(label_metrics(env, source, mask, int(n_labels), True, clustering=True))
-    else:  # our truth tables stop at 64 sources; the clustering metrics do not
+    else:  # our truth tables stop at 128 sources; the clustering metrics do not
         out.update(n_pulses=int(pred.size), **clustering_metrics(source, env))
     return out

@@ -118,7 +118,7 @@ def test_quoted_fields_crlf_and_bom_are_read(tmp_path):
     ("toa\n1\nabc\n", "line 3: toa='abc' is not a number"),
     ("toa,amplitude\n1,2\n2\n", "line 3: has 1 field; every line needs the header's 2 fields"),
     ("toa,amplitude\n1,2\n\n3,4\n", "line 3: is empty"),
-    ("toa,source\n1,-2\n", "line 2: source='-2' is invalid; source must be an integer in [-1, 63]"),
+    ("toa,source\n1,-2\n", "line 2: source='-2' is invalid; source must be an integer in [-1, 127]"),
     ("toa,source\n1,0.5\n", "source='0.5' is invalid"),
     ("toa,source,sources\n1,0,1|2\n", "line 2: sources='1|2' does not include the line's source=0"),
     ("toa,source,sources\n1,0,0|x\n", "sources='0|x' is invalid"),

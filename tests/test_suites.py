@@ -76,9 +76,11 @@ def test_tags_describe_the_scenario():
             assert ("blind" in e.tags) == sp.blind, e.name
             assert ("spurious" in e.tags) == (sp.spurious_rate > 0), e.name
             assert ("agile" in e.tags) == any(x.modulation.kind != "constant" for x in sp.sources), e.name
-            lossy = sp.missing_prob > 0 or sp.coincidence_resolution > 0 or any(x.active for x in sp.sources)
+            lossy = sp.missing_prob > 0 or sp.coincidence_resolution > 0 or any(x.active for x in sp.sources) \
+                or (sp.receiver is not None and sp.receiver.threshold > 0)  # the threshold drops pulses
             assert ("missing" in e.tags) == lossy, e.name
             assert ("paper" in e.tags) == (s.startswith("paper-")), e.name
+            assert ("pdw" in e.tags) == sp.has_descriptors, e.name
             assert ("scale" in e.tags) == (s.startswith("scale-")), e.name
             if "jitter" in e.tags:
                 assert sp.toa_jitter_std > 0 or sp.pri_jitter_std > 0, e.name

@@ -294,11 +294,19 @@ def test_scored_file_equals_scikit_learn(tmp_path, capsys):
 
 def test_many_emitters_score_by_clustering_alone():
     rng = np.random.default_rng(0)
-    true = rng.integers(0, 90, 2000)  # TSRD trains have up to 90 emitters: beyond a 64-bit mask
-    pred = np.where(rng.random(2000) < 0.9, true, 0)
+    true = rng.integers(0, 200, 4000)  # beyond a truth table's 128 sources
+    pred = np.where(rng.random(4000) < 0.9, true, 0)
     got = tdc_scores.score_labels(pred, true)
-    assert got["n_emitters"] == 90 and "accuracy" not in got
+    assert got["n_emitters"] == 200 and "accuracy" not in got
     assert got["v_measure"] == pytest.approx(skm.v_measure_score(true, pred), abs=1e-12)
+
+
+def test_ninety_emitters_get_the_label_metrics_too():
+    rng = np.random.default_rng(0)
+    true = rng.integers(0, 90, 2000)  # TSRD trains have up to 90 emitters: beyond a 64-bit mask, within 128
+    got = tdc_scores.score_labels(true, true)
+    assert got["n_emitters"] == 90 and got["accuracy"] == 1.0 and got["matched_accuracy"] == 1.0
+    assert len(got["pe"]) == 90 and max(got["pe"]) == 0.0
 
 
 # ---- models as policies ------------------------------------------------------------------------------

@@ -10,10 +10,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from deint_env.episode import Episode
+from deint_env.episode import DESCRIPTORS, Episode, Priors
 from deint_env.errors import DeintError
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
-from deint_env.metrics import label_metrics, metric_keys
+from deint_env.metrics import label_metrics, metric_keys, n_sources
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite, resolve_scenario
@@ -22,14 +22,29 @@ DEFAULT_SCENARIO = "paper-v0/mk94-two-var1"
 _BIG = float(np.finfo(np.float64).max)  # TOAs may be any finite float64; Gymnasium warns on infinite bounds
 
 
-def observation_space() -> spaces.Dict:
-    """Raw pulse observations: float64 TOA and amplitude (0 when the scenario has none), and `valid`
-    (0 on the padding steps that follow the last pulse when lag > 0)."""
-    return spaces.Dict({
-        "toa": spaces.Box(-_BIG, _BIG, shape=(1,), dtype=np.float64),
-        "amplitude": spaces.Box(-_BIG, _BIG, shape=(1,), dtype=np.float64),
-        "valid": spaces.Discrete(2),
-    })
+TDC_PREFIX = "tdc:"  # scenario="tdc:PATH" plays a challenge file's pulses
+TDC_LABELS = 128  # the label budget of a challenge file played blind (the TSRD's scenes hold up to 90 emitters)
+
+
+def observation_space(descriptors: tuple[str, ...] = ()) -> spaces.Dict:
+    """Raw pulse observations: float64 TOA and amplitude (0 when the scenario has none), `valid` (0 on
+    the padding steps that follow the last pulse when lag > 0) and the pulse descriptors the scenario
+    has (`frequency`, `pulse_width`, `aoa`: float64; none for a TOA-only scenario)."""
+    box = spaces.Box(-_BIG, _BIG, shape=(1,), dtype=np.float64)
+    return spaces.Dict({"toa": box, "amplitude": box, "valid": spaces.Discrete(2),
+                        **{name: box for name in descriptors}})
+
+
+def _tdc_episode(path: str) -> Episode:
+    """A challenge file's pulses as one blind episode, its labels as the truth."""
+    from deint_env.formats.tdc import read_tdc
+
+    if not path:
+        raise DeintError("scenario='tdc:' names no file: scenario='tdc:PATH' with PATH a TDC (HDF5) file")
+    train = read_tdc(path)
+    if train.labels is None:
+        raise DeintError(f"{path}: has no 'labels' dataset; scenario='tdc:PATH' plays a file's labels as the truth")
+    return train.episode(Priors(n_labels=TDC_LABELS, blind=True), name=f"{TDC_PREFIX}{path}")
 
 
 def check_lag(lag: object) -> int:
@@ -104,9 +119,11 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     ## Observation Space
     `Dict(toa=Box(float64, (1,)), amplitude=Box(float64, (1,)), valid=Discrete(2))`: step k's
-    observation carries pulse k (raw float64 TOA; amplitude 0 when the scenario has none).  After the
-    last pulse come D padding observations with valid = 0.  Learned agents use the float32 feature
-    wrapper `deint_env.wrappers.PulseFeatures`.
+    observation carries pulse k (raw float64 TOA; amplitude 0 when the scenario has none).  A scenario
+    with pulse descriptor words (`DescriptorSpec`) adds `frequency` (MHz), `pulse_width` (us) and `aoa`
+    (degrees), each Box(float64, (1,)); a challenge file adds the ones it has.  After the last pulse
+    come D padding observations with valid = 0 (descriptors 0).  Learned agents use the float32
+    feature wrapper `deint_env.wrappers.PulseFeatures`.
 
     ## Rewards
     1.0 for a right label, else 0.0.  Anchored: right if it names the pulse's source (any of them for
@@ -116,7 +133,8 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     ## Starting State
     `reset(seed=s)` plays episode `simulate(scenario, s)`; `reset()` draws the episode seed from the
-    env's generator (from the split's seed range with `split=`).
+    env's generator (from the split's seed range with `split=`).  With `scenario="tdc:PATH"` every
+    reset plays the file's pulses (the seed only seeds `np_random`).
 
     ## Info
     The same keys, with values of the same type and shape, at reset and at every step, so that
@@ -124,7 +142,8 @@ class DeinterleaveEnv(gym.Env[dict, int]):
     - `priors`: at reset, the public priors (`Priors.as_info()`: periods, phases, their spreads,
       source probabilities, jitter, ...; never the truth); on the steps a placeholder of the same
       keys, types and shapes with every float -inf (`n_labels` and `blind` kept);
-    - `n_pulses` (int), `lag` (int), `has_amplitude` (bool), `scenario` (str);
+    - `n_pulses` (int), `lag` (int), `has_amplitude` (bool), `has_descriptors` (bool: the observations
+      carry pulse descriptors), `scenario` (str);
     - `metrics`: the episode's label metrics (`deint_env.metrics.label_metrics`, with the clustering
       scores unless `clustering_metrics=False`, and `lag`) on the last step; before it a placeholder:
       every float -inf, `n_pulses` 0, `pe` all -inf.  In the info `pe` (per-source error probability
@@ -140,8 +159,9 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     ## Arguments
     `scenario`: a ScenarioSpec, its dict, or a scenario name ("suite/scenario" or a unique bare name;
-    default "paper-v0/mk94-two-var1").  `lag`: decision delay D >= 0.  `render_mode`: None, "ansi",
-    "human" or "rgb_array" (see Rendering).  `clustering_metrics`: whether the metrics include the
+    default "paper-v0/mk94-two-var1"), or "tdc:PATH": a Turing Deinterleaving Challenge file played as
+    one blind episode (label budget 128), its labels as the truth (a file without labels is refused).
+    `lag`: decision delay D >= 0.  `render_mode`: None, "ansi", "human" or "rgb_array" (see Rendering).  `clustering_metrics`: whether the metrics include the
     clustering scores (V-measure, ARI, AMI, ...; True; computed with numpy from the contingency table,
     ~0.3 ms for a 500-pulse episode).  `split`: None, "train", "validation" or "test": play only that split's seeds of a suite
     scenario; a reset with any other seed raises `DeintError`.
@@ -179,6 +199,12 @@ class DeinterleaveEnv(gym.Env[dict, int]):
                              f"n_labels >= 1 and blind true or false")
         if not isinstance(clustering_metrics, (bool, np.bool_)):
             raise DeintError(f"clustering_metrics={clustering_metrics!r} is invalid: True or False")
+        self._file_episode = None
+        if isinstance(scenario, str) and scenario.startswith(TDC_PREFIX):
+            if split is not None:
+                raise DeintError(f"split={split!r} is for suite scenarios; a challenge file has no seed splits")
+            self._file_episode = _tdc_episode(scenario[len(TDC_PREFIX):])
+            n_labels, blind, scenario = TDC_LABELS, True, None
         self.spec_scenario = resolve_scenario(scenario) if scenario is not None else None
         self.split = split_seeds(scenario, self.spec_scenario, split)
         self.lag = check_lag(lag)
@@ -195,7 +221,9 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         self.n_labels = self.spec_scenario.n_labels if self.spec_scenario is not None else int(n_labels)
         self.blind = self.spec_scenario.blind if self.spec_scenario is not None else blind
         self.action_space = spaces.Discrete(self.n_labels + 1)
-        self.observation_space = observation_space()
+        self.descriptors = (DESCRIPTORS if self.spec_scenario is not None and self.spec_scenario.has_descriptors
+                            else tuple(self._file_episode.descriptors) if self._file_episode is not None else ())
+        self.observation_space = observation_space(self.descriptors)
         self.episode: Episode | None = None
         self._step = 0
         self._scored = True
@@ -209,11 +237,15 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         env = cls(None, lag=lag, clustering_metrics=clustering_metrics, n_labels=episode.n_labels,
                   blind=episode.blind)
         env._scored = scored
+        env.descriptors = tuple(episode.descriptors)
+        env.observation_space = observation_space(env.descriptors)
         return env
 
     # ---- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
+        if self._file_episode is not None:
+            return self.load_episode(self._file_episode)
         if self.spec_scenario is None:
             raise gym.error.Error("this env plays given episodes only: use load_episode()")
         if seed is not None and self.split is not None:
@@ -232,11 +264,15 @@ class DeinterleaveEnv(gym.Env[dict, int]):
         if not self._fits(episode):
             raise DeintError(f"episode has {episode.n_labels} labels (blind={episode.blind}); this env expects "
                              f"{self.n_labels} (blind={self.blind})")
+        missing = [name for name in self.descriptors if getattr(episode, name) is None]
+        if missing:
+            raise DeintError(f"episode has no {', '.join(missing)}; this env observes {', '.join(self.descriptors)}")
         self.episode = episode
         n = len(episode)
         self._n = n
         self._toa = episode.toa
         self._amp = episode.amplitude if episode.amplitude is not None else np.zeros(n)
+        self._desc = [(name, getattr(episode, name)) for name in self.descriptors]
         # The label check reads the primary source first: a Python list indexes faster than numpy,
         # and its small ints are shared objects, so it costs one pointer a pulse.
         self._src = episode.source.tolist()
@@ -248,7 +284,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
             self._pred = truth.pred.tolist()
             self._alt = truth.alternatives()
             self._last = [NO_PRED] * self.n_labels
-        self._n_sources = int(np.bitwise_or.reduce(episode.mask)).bit_length() if n else 0
+        self._n_sources = n_sources(episode.source, episode.mask)
         self._pending = self._placeholder_metrics()
         reset_info = self._reset_info()
         # Every step's info has the reset info's structure; priors and metrics are placeholders where
@@ -327,12 +363,17 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     def _observation(self, k: int) -> dict[str, Any]:
         if k < self._n:
-            return {"toa": self._toa[k:k + 1].copy(), "amplitude": self._amp[k:k + 1].copy(), "valid": np.int64(1)}
-        return {"toa": np.zeros(1), "amplitude": np.zeros(1), "valid": np.int64(0)}
+            obs = {"toa": self._toa[k:k + 1].copy(), "amplitude": self._amp[k:k + 1].copy(), "valid": np.int64(1)}
+            for name, values in self._desc:
+                obs[name] = values[k:k + 1].copy()
+            return obs
+        return {"toa": np.zeros(1), "amplitude": np.zeros(1), "valid": np.int64(0),
+                **{name: np.zeros(1) for name, _ in self._desc}}
 
     def _reset_info(self) -> dict[str, Any]:
         return {"priors": self.episode.priors.as_info(), "n_pulses": self._n, "lag": self.lag,
-                "has_amplitude": self.episode.amplitude is not None, "scenario": self.episode.scenario}
+                "has_amplitude": self.episode.amplitude is not None, "has_descriptors": bool(self.descriptors),
+                "scenario": self.episode.scenario}
 
     def render(self):
         """ansi: a text table of the last labelled pulses; rgb_array: the ΔTOA-against-TOA picture of the

@@ -46,11 +46,15 @@ def split_seeds(entry: SuiteEntry, split: str) -> range:
 
 def widest_entry(entries: list[tuple[str, SuiteEntry]], split: str) -> SuiteEntry:
     """The entry with the most labels (it sets the action space), after checking `split` and that the
-    entries are all anchored or all blind."""
+    entries are all anchored or all blind, and all with pulse descriptors or all without (one
+    observation space)."""
     if split not in SPLITS:
         raise DeintError(f"split={split!r} is invalid: one of {', '.join(SPLITS)}")
     if len({e.spec.blind for _, e in entries}) > 1:
         raise DeintError("the selected scenarios mix anchored and blind ones; train on one kind at a time")
+    if len({e.spec.has_descriptors for _, e in entries}) > 1:
+        raise DeintError("the selected scenarios mix ones with pulse descriptors (pdw) and TOA-only ones; their "
+                         "observations differ: select one kind (e.g. tags=['pdw'])")
     return max((e for _, e in entries), key=lambda e: e.spec.n_labels)
 
 

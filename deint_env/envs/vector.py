@@ -13,6 +13,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from deint_env.envs.deinterleave import DEFAULT_SCENARIO, check_lag, observation_space, split_seeds
+from deint_env.episode import DESCRIPTORS
 from deint_env.episode import Episode
 from deint_env.errors import DeintError
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
@@ -40,8 +41,8 @@ class DeinterleaveVectorEnv(VectorEnv):
     n_labels = spurious; with `lag = D` the action at step k labels pulse k - D).
 
     ## Observation Space
-    The single env's `Dict` batched: `toa` and `amplitude` `(num_envs, 1)` float64, `valid`
-    `(num_envs,)` int64.
+    The single env's `Dict` batched: `toa` and `amplitude` (and a descriptor scenario's `frequency`,
+    `pulse_width`, `aoa`) `(num_envs, 1)` float64, `valid` `(num_envs,)` int64.
 
     ## Rewards
     float64 array, 1.0 for a right label, else 0.0, by the single env's anchored or blind (link) rules.
@@ -52,9 +53,9 @@ class DeinterleaveVectorEnv(VectorEnv):
     every autoreset, sub-env i draws its episode seed from its own generator as the single env does.
     The sub-envs that start an episode on the same step have it simulated together, in one
     `simulate_many` call (the same episodes as one `simulate` each, at a fraction of the cost).
-    The reset info is the single env's (`priors`, `n_pulses`, `lag`, `has_amplitude`, `scenario`)
-    batched the Gymnasium way (arrays with `_key` masks); an autoreset step carries it for the sub-envs
-    that reset.  `episodes[i]` is the episode sub-env i is playing.
+    The reset info is the single env's (`priors`, `n_pulses`, `lag`, `has_amplitude`, `has_descriptors`,
+    `scenario`) batched the Gymnasium way (arrays with `_key` masks); an autoreset step carries it for
+    the sub-envs that reset.  `episodes[i]` is the episode sub-env i is playing.
 
     ## Episode End
     Sub-env i terminates after n_pulses + D steps.  Autoreset mode NEXT_STEP (the default): on its
@@ -106,7 +107,8 @@ class DeinterleaveVectorEnv(VectorEnv):
         self.blind = self.spec_scenario.blind
         self.single_action_space = spaces.Discrete(self.n_labels + 1)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.single_observation_space = observation_space()
+        self.descriptors = DESCRIPTORS if self.spec_scenario.has_descriptors else ()
+        self.single_observation_space = observation_space(self.descriptors)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
 
         n_env = self.num_envs
@@ -129,8 +131,8 @@ class DeinterleaveVectorEnv(VectorEnv):
         else:
             # A pulse's row holds its source bits, 0 if spurious (simulate gives every real pulse its
             # source's bit, so an empty row means spurious).  Label a is right when
-            # row & bit[a] == want[a]: a track needs its bit, "spurious" needs an empty row, and a
-            # track past bit 63 (the single env's `a < 64` rule) can never match want = 1.
+            # row & bit[a] == want[a]: a track needs its bit, "spurious" needs an empty row; a track
+            # past bit 63 never matches want = 1 here and is right by its primary source (`_src`).
             a = np.arange(spur + 1)
             real = a < min(spur, 64)
             self._label_bit = np.where(real, np.left_shift(np.uint64(1), np.minimum(a, 63).astype(np.uint64)),
@@ -145,8 +147,11 @@ class DeinterleaveVectorEnv(VectorEnv):
         """(num_envs, cap) rows, cap > every episode's length so column n (zeros) is the padding obs."""
         old = getattr(self, "_cap", 0)
         tables = {"_toa": (np.float64, 0), "_amp": (np.float64, 0), "_labels": (np.int64, -1)}
+        tables.update({f"_{name}": (np.float64, 0) for name in self.descriptors})
         tables.update({"_pred": (np.int64, SPURIOUS_PRED), "_has_alt": (bool, False)} if self.blind
                       else {"_right": (np.uint64, 0)})
+        if not self.blind and self.n_labels > 64:  # sources past the 64-bit mask: right by their primary source
+            tables["_src"] = (np.int64, -1)
         for name, (dtype, fill) in tables.items():
             new = np.full((self.num_envs, cap), fill, dtype)
             if old:
@@ -178,6 +183,7 @@ class DeinterleaveVectorEnv(VectorEnv):
         self._add_infos(infos, {"priors": {key: [p[key] for p in priors] for key in priors[0]},
                                 "n_pulses": [len(ep) for ep in episodes], "lag": [self.lag] * m,
                                 "has_amplitude": [ep.amplitude is not None for ep in episodes],
+                                "has_descriptors": [bool(self.descriptors)] * m,
                                 "scenario": [self.spec_scenario.name] * m}, rows)
 
     def _load(self, rows: list[int], episodes: list[Episode]) -> None:
@@ -196,9 +202,15 @@ class DeinterleaveVectorEnv(VectorEnv):
             # One scenario's episodes all carry amplitudes, or none does.
             self._amp[r, :n] = 0.0 if eps[0].amplitude is None else np.array([ep.amplitude for ep in eps])
             self._amp[r, n:] = 0.0
+            for name in self.descriptors:
+                table = getattr(self, f"_{name}")
+                table[r, :n] = np.array([getattr(ep, name) for ep in eps])
+                table[r, n:] = 0.0
             if not self.blind:
                 source, mask = np.array([ep.source for ep in eps]), np.array([ep.mask for ep in eps])
                 self._right[r, :n] = np.where(source >= 0, mask, np.uint64(0))
+                if self.n_labels > 64:
+                    self._src[r, :n] = source
         if self.blind:
             self._has_alt[rows_a] = False
             self._last[rows_a, :-1] = NO_PRED
@@ -296,6 +308,8 @@ class DeinterleaveVectorEnv(VectorEnv):
             last[lf] = np.where(labelling & (a != spur), j, named)
         else:
             ok = (self._right.reshape(-1)[jf] & self._label_bit[a]) == self._label_want[a]
+            if self.n_labels > 64:
+                ok |= (a >= 64) & (a < spur) & (self._src.reshape(-1)[jf] == a)
         reward = (ok & labelling).astype(np.float64)
         self._labels.reshape(-1)[jf] = a
         self._score += reward
@@ -325,6 +339,7 @@ class DeinterleaveVectorEnv(VectorEnv):
         # Columns past n hold zeros; only the lag's padding steps run past the last column.
         f = self._base + (np.minimum(self._k, self._cap - 1) if self.lag else self._k)
         return {"toa": self._toa.reshape(-1)[f][:, None], "amplitude": self._amp.reshape(-1)[f][:, None],
+                **{name: getattr(self, f"_{name}").reshape(-1)[f][:, None] for name in self.descriptors},
                 "valid": (self._k < self._n).astype(np.int64)}
 
     def _done(self, i: int) -> int:

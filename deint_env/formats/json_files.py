@@ -1,7 +1,8 @@
 """JSON files: priors files and scenario files, and the limits every JSON input is parsed within.
 
 Priors file: JSON, `{"period": [...], "phase": [...], "jitter_std": s, ...}` (see
-`Priors.from_json_dict`).  NaN and Infinity are refused (they are not JSON).
+`Priors.from_json_dict`); an emitter library adds per-track `frequency`, `pulse_width`, `aoa` (MHz, us,
+degrees) with their `frequency_std`, `pulse_width_std`, `aoa_std`.  NaN and Infinity are refused (they are not JSON).
 
 Limits, checked before Python builds anything from the text: nesting at most `MAX_DEPTH` deep
 (Python's parser recurses, so a deeper document would raise RecursionError), integers of at most

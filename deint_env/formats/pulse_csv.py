@@ -31,7 +31,8 @@ import numpy as np
 from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError
 from deint_env.formats.files import PathLike, read_text, write_text
-from deint_env.scenario import MAX_SOURCES
+from deint_env.labels import source_bits
+from deint_env.scenario import MAX_MERGING_SOURCES, MAX_SOURCES
 
 PULSE_COLUMNS = ("toa", "amplitude", "source", "sources")
 LABEL_COLUMNS = ("toa", "label")
@@ -153,12 +154,16 @@ def _check_sorted(path: Path, toa: np.ndarray) -> None:
 @dataclass(frozen=True, eq=False)
 class PulseTable:
     """The columns of a pulse file.  source (int32, -1 = spurious) and mask (uint64 bits of every
-    merged source) are None unless the file has a `source` column."""
+    merged source) are None unless the file has a `source` column.  frequency, pulse_width, aoa: the
+    pulse descriptors of a challenge file that has them (CSV pulse files hold none)."""
 
     toa: np.ndarray
     amplitude: np.ndarray | None
     source: np.ndarray | None
     mask: np.ndarray | None
+    frequency: np.ndarray | None = None
+    pulse_width: np.ndarray | None = None
+    aoa: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.toa.size)
@@ -168,7 +173,7 @@ class PulseTable:
         """The number of true sources the truth names (0 without truth)."""
         if self.mask is None or not self.mask.size:
             return 0
-        return int(np.bitwise_or.reduce(self.mask)).bit_length()
+        return max(int(np.bitwise_or.reduce(self.mask)).bit_length(), int(self.source.max()) + 1)
 
 
 def format_pulses(episode: Episode, truth: bool = True) -> str:
@@ -209,9 +214,7 @@ def read_pulse_table(path: PathLike) -> PulseTable:
             raise DeintError(f"{path}: line 1: a 'sources' column needs a 'source' column (the primary source)")
         return PulseTable(toa, amplitude, None, None)
     source = _ints(path, "source", col["source"], -1, MAX_SOURCES - 1, " (-1 = spurious)")
-    mask = np.zeros(n, dtype=np.uint64)
-    real = source >= 0
-    mask[real] = np.left_shift(np.uint64(1), source[real].astype(np.uint64))
+    mask = source_bits(source)
     if "sources" in col:
         _merge_sources(path, col["sources"], col["source"], source, mask)
     return PulseTable(toa, amplitude, source.astype(np.int32), mask)
@@ -234,9 +237,9 @@ def _merge_sources(path: Path, cells: list[str], source_cells: list[str], source
         if members == [src[i]]:
             continue
         where = f"{path}: line {i + 2}: sources={cell!r}"
-        if members is None or any(not 0 <= m < MAX_SOURCES for m in members):
-            raise DeintError(f"{where} is invalid; allowed: source numbers in [0, {MAX_SOURCES - 1}] joined by "
-                             f"'|' (e.g. 0|2), -1 for a spurious pulse, or empty")
+        if members is None or any(not 0 <= m < MAX_MERGING_SOURCES for m in members):
+            raise DeintError(f"{where} is invalid; allowed: source numbers in [0, {MAX_MERGING_SOURCES - 1}] "
+                             f"joined by '|' (e.g. 0|2), -1 for a spurious pulse, or empty")
         if src[i] not in members:
             raise DeintError(f"{where} does not include the line's source={src[i]}; sources lists every source "
                              f"merged into the pulse, the primary one included")

@@ -42,8 +42,11 @@ Labels and noise.  TDC labels are emitter ids with no order and no priors, so TD
 blind (clustering) problems; the challenge's primary metric is the V-measure.  A negative label (the
 TDC models' ``default_label`` convention, -1 as HDBSCAN writes it) is read as "belongs to no emitter",
 which is our spurious label (-1 in our files).  `TDCTrain.pulse_table` numbers the emitters 0..K-1 in
-increasing id order (at most 64, the bit-mask limit of our truth tables; more is still scored by the
-clustering metrics, see `score_labels`).
+increasing id order (at most 128, `scenario.MAX_SOURCES`; more is still scored by the clustering
+metrics, see `score_labels`).  Its frequency, pulse_width and angle_of_arrival columns become the
+episode's `frequency`, `pulse_width` and `aoa` arrays (`TDCTrain.episode`), and an episode's arrays
+are written back under those names (`train_from_episode`); a file's other units are kept as they are.
+`gym.make("deint_env/Deinterleave-v0", scenario="tdc:PATH")` plays a labelled file as one blind episode.
 
 Choices where the TDC format leaves room (all documented here):
 - we write ``data`` as float32 (their dtype) by default; ``dtype="float64"`` keeps float64 TOAs exact
@@ -59,6 +62,7 @@ Choices where the TDC format leaves room (all documented here):
 from __future__ import annotations
 
 import contextlib
+import io
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,6 +74,7 @@ from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError
 from deint_env.formats import pulse_csv
 from deint_env.formats.files import PathLike, atomic_path, check_array_size, write_text
+from deint_env.labels import source_bits
 from deint_env.scenario import MAX_SOURCES
 
 SUFFIXES = (".h5", ".hdf5")
@@ -85,6 +90,8 @@ FEATURES: dict[str, tuple[str, ...]] = {
 WRITTEN_NAMES = {"toa": "time_of_arrival", "frequency": "frequency", "pulse_width": "pulse_width",
                  "angle_of_arrival": "angle_of_arrival", "amplitude": "amplitude"}
 _ALIAS = {alias: canon for canon, aliases in FEATURES.items() for alias in aliases}
+# Our feature columns beside toa and amplitude, by the `Episode` array that holds each.
+EPISODE_DESCRIPTORS = {"frequency": "frequency", "pulse_width": "pulse_width", "angle_of_arrival": "aoa"}
 INT8 = (-128, 127)
 
 
@@ -175,22 +182,24 @@ class TDCTrain:
         out[real] = np.searchsorted(self.emitters, self.labels[real])
         return out
 
+    def descriptors(self) -> dict[str, np.ndarray]:
+        """The pulse descriptor columns it has, by `Episode` array name (frequency, pulse_width, aoa)."""
+        return {ours: self.column(col) for col, ours in EPISODE_DESCRIPTORS.items() if col in self.columns}
+
     def pulse_table(self, where: str = "the TDC file") -> pulse_csv.PulseTable:
-        """The train as our `PulseTable` (with truth when it has labels)."""
+        """The train as our `PulseTable` (with truth when it has labels, and its descriptor columns)."""
         if self.labels is None:
-            return pulse_csv.PulseTable(self.toa, self.amplitude, None, None)
+            return pulse_csv.PulseTable(self.toa, self.amplitude, None, None, **self.descriptors())
         k = self.emitters.size
         if k > MAX_SOURCES:
             raise DeintError(f"{where}: has {k} emitters; a truth table holds at most {MAX_SOURCES} sources")
         source = self.source()
-        mask = np.zeros(len(self), dtype=np.uint64)
-        real = source >= 0
-        mask[real] = np.left_shift(np.uint64(1), source[real].astype(np.uint64))
-        return pulse_csv.PulseTable(self.toa, self.amplitude, source, mask)
+        return pulse_csv.PulseTable(self.toa, self.amplitude, source, source_bits(source), **self.descriptors())
 
     def episode(self, priors: Priors, name: str = "tdc") -> Episode:
         """The train as an `Episode` to play with `priors` (truth None; the source columns are the
-        labels when the file has them, else zeros, as `pulse_csv.read_pulses` does)."""
+        labels when the file has them, else zeros, as `pulse_csv.read_pulses` does; its descriptor
+        columns as the episode's)."""
         n = len(self)
         if self.labels is not None and self.emitters.size <= MAX_SOURCES:
             t = self.pulse_table()
@@ -198,7 +207,7 @@ class TDCTrain:
         else:
             source, mask = np.zeros(n, dtype=np.int32), np.zeros(n, dtype=np.uint64)
         return Episode(scenario=name, seed=0, toa=self.toa, amplitude=self.amplitude, source=source, mask=mask,
-                       truth=None, priors=priors)
+                       truth=None, priors=priors, **self.descriptors())
 
     def model_input(self) -> np.ndarray:
         """What a TDC model is given for this train: the data matrix as float32, columns as in the file."""
@@ -288,6 +297,18 @@ class TDCTrain:
     # ---- writing -----------------------------------------------------------------------------------
     def write(self, path: PathLike, dtype: str = "float32") -> None:
         """Write the train as a TDC file (atomically: a temporary file renamed over `path`)."""
+        _atomic_h5(Path(path), self._filler(str(path), dtype))
+
+    def to_bytes(self, dtype: str = "float32", where: str = "the TDC train") -> bytes:
+        """The TDC file's bytes (for `files.write_all`, which writes several outputs all or none)."""
+        fill = self._filler(where, dtype)
+        buffer = io.BytesIO()
+        with _h5py().File(buffer, "w") as f:
+            fill(f)
+        return buffer.getvalue()
+
+    def _filler(self, path: str, dtype: str) -> Callable[[Any], None]:
+        """The train checked for writing as `dtype`, and the function that fills an open HDF5 file."""
         if dtype not in ("float32", "float64"):
             raise DeintError(f"dtype={dtype!r} is invalid: float32 (the TDC's) or float64")
         train = self.validated(str(path))
@@ -312,7 +333,7 @@ class TDCTrain:
                 f.create_dataset("labels", data=labels.astype(np.int8), dtype=np.int8, compression="gzip",
                                  compression_opts=9, track_times=False)
 
-        _atomic_h5(Path(path), fill)
+        return fill
 
 
 @contextlib.contextmanager
@@ -442,9 +463,17 @@ def _atomic_h5(path: Path, fill: Callable[[Any], None]) -> None:
         fill(f)
 
 
+def episode_features(episode: Episode) -> dict[str, np.ndarray]:
+    """An episode's descriptor arrays by TDC feature name (frequency, pulse_width, angle_of_arrival)."""
+    return {col: getattr(episode, ours) for col, ours in EPISODE_DESCRIPTORS.items()
+            if getattr(episode, ours) is not None}
+
+
 def train_from_episode(episode: Episode, truth: bool = True) -> TDCTrain:
-    """A simulated or loaded episode as a TDC train (labels = primary source, -1 = spurious)."""
+    """A simulated or loaded episode as a TDC train (every column it has; labels = primary source,
+    -1 = spurious)."""
     return TDCTrain.from_columns(episode.toa, episode.amplitude, episode.source if truth else None,
+                                 episode_features(episode),
                                  description=f"deint-bench episode {episode.scenario} seed {episode.seed}")
 
 
@@ -476,7 +505,8 @@ def write_labels(path: PathLike, pulses: TDCTrain | Episode, labels: np.ndarray,
         out = TDCTrain(pulses.data, pulses.feature_names, file_labels, meta)
         out.write(path, "float64" if pulses.data.dtype == np.float64 else "float32")
     else:
-        TDCTrain.from_columns(pulses.toa, pulses.amplitude, file_labels, description=description).write(path, "float64")
+        TDCTrain.from_columns(pulses.toa, pulses.amplitude, file_labels, episode_features(pulses),
+                              description=description).write(path, "float64")
 
 
 def convert(src: PathLike, dst: PathLike, dtype: str = "float32") -> str:

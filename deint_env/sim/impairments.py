@@ -1,5 +1,6 @@
-"""The receiver's impairments, before sorting and merging: missed emissions, white Gaussian TOA noise
-and a Poisson stream of spurious pulses."""
+"""The receiver's impairments, before sorting and merging: missed emissions, white Gaussian TOA noise,
+a Poisson stream of spurious pulses and, with pulse descriptors, the antenna gains and the
+receiver's threshold (`sim.descriptors`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from deint_env.scenario import ScenarioSpec
+from deint_env.sim.descriptors import Descriptors, describe
 from deint_env.sim.merging import merge_at_emission
 from deint_env.sim.rows import compact
 from deint_env.sim.schedule import Draws, Emissions
@@ -17,11 +19,13 @@ from deint_env.sim.streams import JITTER, MISSING, SPURIOUS, fill, streams
 
 class Received(NamedTuple):
     """Each episode's received pulses as a row (the source blocks side by side, spurious pulses last;
-    padding sorts last), their amplitudes (or None) and each column's source (-1: spurious)."""
+    padding sorts last), their amplitudes (or None), each column's source (-1: spurious) and, with
+    pulse descriptors, each column's (else None; a pulse the threshold drops has TOA +inf)."""
 
     toa: np.ndarray
     amplitude: np.ndarray | None
     column_source: np.ndarray
+    descriptors: Descriptors | None
 
 
 def receive(spec: ScenarioSpec, g: Draws, horizon: np.ndarray, sched: list[Emissions]) -> Received:
@@ -71,13 +75,19 @@ def receive(spec: ScenarioSpec, g: Draws, horizon: np.ndarray, sched: list[Emiss
                 amp[j, edges[k]:edges[k] + u.size] = spur_a[j]
         spur *= span[:, None]  # t_start + span * u, in place
         spur += g.t_start[:, None]
+    desc = None
+    if g.emitters is not None:
+        desc = describe(spec, spec.sources[:k], g.emitters, g.seeds, y, amp, ys, counts, edges,
+                        [u.size for u in spur_u] if len(labels) > k else None)
     if spec.merge == "emission":
         noise_free = y.copy()  # spurious pulses: their own times
         for a, b, t in zip(edges, edges[1:], ys):
             noise_free[:, a:b] = t
+        if desc is not None:  # a pulse the receiver does not hear merges with nothing
+            noise_free[y == np.inf] = np.inf
         merge_at_emission(y, noise_free, spec.coincidence_resolution)
 
-    return Received(y, amp, np.repeat(np.array(labels, np.int32), widths))
+    return Received(y, amp, np.repeat(np.array(labels, np.int32), widths), desc)
 
 
 def _miss(prob: float, seeds: list[int], counts: np.ndarray, ts: list[np.ndarray], amps: list[np.ndarray | None]):

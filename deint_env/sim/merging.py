@@ -17,11 +17,13 @@ class MergedRow(NamedTuple):
     source: np.ndarray
     mask: np.ndarray
     amplitude: np.ndarray | None
+    descriptors: tuple[np.ndarray, ...] = ()
 
 
-def merge(toa, src, bits, amp, starts, out: MergedRow) -> None:
+def merge(toa, src, bits, amp, starts, out: MergedRow, descriptors: tuple[np.ndarray, ...] = ()) -> None:
     """Merge each run of pulses closer than the resolution to their predecessor (group `starts`)
-    into the rows of `out`.
+    into the rows of `out`; a merged pulse keeps its leading pulse's `descriptors` (frequency, ...),
+    as it keeps its TOA.
 
     Merged runs are rare, so the work is a gather at the run starts plus scatters of the few others.
     """
@@ -37,6 +39,8 @@ def merge(toa, src, bits, amp, starts, out: MergedRow) -> None:
     if amp is not None:
         np.take(amp, starts, out=out_amp, mode="clip")
         np.add.at(out_amp, group, amp[rest])  # energies add (MK94 II-A)
+    for values, kept in zip(descriptors, out.descriptors):
+        np.take(values, starts, out=kept, mode="clip")
     np.take(src, starts, out=primary, mode="clip")
     # A run led by a spurious pulse takes its first real member as its primary source.
     real = src[rest] >= 0

@@ -65,7 +65,34 @@ def episode_priors(spec: ScenarioSpec, g: Draws) -> list[Priors]:
     # PriorSpec.modulation: the sources' modulations as specified (no per-episode draw), none for phantoms
     modulation = tuple([s.modulation for s in spec.sources[:min(n, k)]] + [None] * (n - k)) if ps.modulation \
         else None
+    library = _library(spec, g) if ps.descriptors else [{}] * n_rows
     return [Priors(n_labels=n, period=per, phase=ph, period_std=per_std, phase_std=ph_std, source_prob=pi,
-                   amplitude=amp, amplitude_std=amp_std, modulation=modulation, **common)
-            for per, ph, per_std, ph_std, pi, amp, amp_std in zip(p_period, p_phase, p_period_std, p_phase_std, prob,
-                                                                  amplitude, amplitude_std)]
+                   amplitude=amp, amplitude_std=amp_std, modulation=modulation, **lib, **common)
+            for per, ph, per_std, ph_std, pi, amp, amp_std, lib in zip(p_period, p_phase, p_period_std, p_phase_std,
+                                                                       prob, amplitude, amplitude_std, library)]
+
+
+# The spreads' floors: a descriptor stated exactly (no jitter, no noise) still gets a spread, so that a
+# likelihood built on the library stays finite.
+_MIN_STD = {"frequency": 1e-3, "pulse_width": 1e-4, "aoa": 1e-3}  # MHz, us, degrees
+
+
+def _library(spec: ScenarioSpec, g: Draws) -> list[dict[str, np.ndarray]]:
+    """`PriorSpec.descriptors`: each episode's per-source descriptor means and spreads (an emitter library)."""
+    e, rx = g.emitters, spec.receiver
+    noise = ((rx.frequency_noise_std, rx.pulse_width_noise_std, rx.aoa_noise_std) if rx is not None
+             else (0.0, 0.0, 0.0))
+    ds = [s.descriptors for s in spec.sources[:g.period.shape[1]]]
+    hops = [np.asarray(d.frequency_hops or (0.0,)) for d in ds]
+    levels = [np.asarray(d.pulse_width_levels or (1.0,)) for d in ds]
+    frequency = e.frequency + np.array([h.mean() for h in hops])
+    f_std = np.hypot(np.hypot([d.frequency_std for d in ds], [h.std() for h in hops]), noise[0])
+    pulse_width = e.pulse_width * np.array([v.mean() for v in levels])
+    w_std = np.hypot(e.pulse_width * np.array([v.std() for v in levels]), noise[1])
+    # the AoA drifts over the episode: a uniform spread of |rate| H0 about its start
+    a_std = np.hypot(np.abs(e.aoa_rate) * g.h0[:, None] / np.sqrt(12.0), noise[2])
+    values = {"frequency": frequency, "frequency_std": np.broadcast_to(np.maximum(f_std, _MIN_STD["frequency"]),
+                                                                       frequency.shape),
+              "pulse_width": pulse_width, "pulse_width_std": np.maximum(w_std, _MIN_STD["pulse_width"]),
+              "aoa": e.aoa % 360.0, "aoa_std": np.maximum(a_std, _MIN_STD["aoa"])}
+    return [{name: np.array(v[r]) for name, v in values.items()} for r in range(g.period.shape[0])]

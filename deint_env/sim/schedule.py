@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from deint_env.scenario import Modulation, Range, ScenarioSpec, SourceSpec
+from deint_env.sim.descriptors import EmitterDraws
 from deint_env.sim.rows import compact
 from deint_env.sim.streams import AMPLITUDE, CUMULATIVE, MODULATION, fill, stream
 
@@ -51,10 +52,12 @@ class Draws:
     h0: np.ndarray  # (E,) nominal duration: the windows' unit
     spur_intensity: np.ndarray  # (E,)
     t_start: np.ndarray  # (E,)
+    emitters: EmitterDraws | None = None  # the pulse descriptors' draws (None: TOAs only)
 
     def take(self, rows: np.ndarray) -> Draws:
         return Draws([self.seeds[j] for j in rows.tolist()], self.period[rows], self.phase[rows],
-                      self.amp_mean[rows], self.h0[rows], self.spur_intensity[rows], self.t_start[rows])
+                      self.amp_mean[rows], self.h0[rows], self.spur_intensity[rows], self.t_start[rows],
+                      None if self.emitters is None else self.emitters.take(rows))
 
 
 def draw_sources(spec: ScenarioSpec, draw: np.random.Generator) -> SourceDraw:

@@ -13,6 +13,9 @@ from deint_env.errors import DeintError
 
 # The random streams' roles (the second word of their seed key).
 DRAW, MISSING, JITTER, SPURIOUS, AMPLITUDE_NOISE, PRIORS, MODULATION, CUMULATIVE, AMPLITUDE, WAVEFORM = range(10)
+# Pulse descriptors draw from streams of their own, so a scenario's TOAs do not move when its sources
+# gain descriptors (only pulses below the receiver's threshold go): per episode, and per pulse.
+DESCRIPTOR_DRAW, DESCRIPTOR_PULSE = 10, 11
 
 
 def stream(seed: int, role: int, index: int = 0) -> np.random.Generator:

@@ -21,7 +21,7 @@ from typing import Any, Iterator
 from deint_env.errors import DeintError
 from deint_env.scenario import ScenarioSpec
 
-TAGS = ("jitter", "missing", "spurious", "agile", "scale", "blind", "paper")
+TAGS = ("jitter", "missing", "spurious", "agile", "scale", "blind", "paper", "pdw")
 SPLITS = ("train", "validation", "test")
 # The last seeds of every train range are held out of training for validation; the rule is the same
 # for every suite, so it is not part of a suite's content (validation seeds never move a test score).

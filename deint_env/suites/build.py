@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from deint_env.scenario import Modulation, PriorSpec, Range, ScenarioSpec, SourceSpec
+from deint_env.scenario import DescriptorSpec, Modulation, PriorSpec, Range, ReceiverSpec, ScenarioSpec, SourceSpec
 from deint_env.suites import Suite, SuiteEntry, SeedRange
 
 HERE = Path(__file__).parent
@@ -324,8 +324,67 @@ def blind_v0() -> Suite:
     return Suite("blind-v0", 0, "Unknown number of sources and no priors: link-rewarded labels.", tuple(e))
 
 
+# ------------------------------------------------------------------------------------------------
+# pdw-v0: pulse descriptor words, as the Turing Synthetic Radar Dataset's scenes (Gunn et al. 2026)
+# ------------------------------------------------------------------------------------------------
+# Every emitter draws from the same wide ranges, so they overlap in every descriptor: X band, the TDC's
+# microsecond TOAs.  Antenna scans are compressed to 10-100 ms (real search radars: seconds) so that an
+# episode of 10^4 pulses holds whole scans, bursts and gaps alike.
+PDW_PRI = Range(50.0, 5000.0, log=True)  # us
+PDW_FREQUENCY = Range(8000.0, 12000.0)  # MHz
+PDW_PULSE_WIDTH = Range(0.5, 50.0, log=True)  # us
+PDW_ERP = Range(0.5, 50.0, log=True)  # received amplitude on the main beam (ERP less range loss)
+PDW_SCAN = Range(1e4, 1e5, log=True)  # us
+PDW_AOA_DRIFT = Range(-1e-5, 1e-5)  # degrees per us: up to 10 degrees a second
+PDW_RECEIVERS = {
+    "staring": ReceiverSpec(threshold=0.05, frequency_noise_std=1.0, pulse_width_noise_std=0.05, aoa_noise_std=2.0),
+    "scanning": ReceiverSpec(mode="scanning", scan_period=2e4, beamwidth=30.0, sidelobe_db=-20.0, threshold=0.05,
+                             frequency_noise_std=1.0, pulse_width_noise_std=0.05, aoa_noise_std=2.0),
+}
+PDW_PRIORS = PriorSpec(kind="perturbed", period_error=0.01, phase_error=0.05, descriptors=True)  # an emitter library
+
+
+def pdw_emitter(i: int) -> SourceSpec:
+    """Emitter i of a pdw-v0 scene: a mix cycling through the kinds of emitters a receiver meets."""
+    kind = i % 4
+    common = dict(frequency=PDW_FREQUENCY, pulse_width=PDW_PULSE_WIDTH, aoa_rate=PDW_AOA_DRIFT,
+                  beamwidth=(2.0, 3.0, 5.0)[i % 3], beam=("gaussian", "sinc2")[i % 2], sidelobe_db=-25.0)
+    d = (DescriptorSpec(frequency_std=1.0, scan="circular", scan_period=PDW_SCAN, **common),  # search radar
+         DescriptorSpec(frequency_hops=(0.0, 40.0, 80.0, 120.0, 160.0), pulse_width_levels=(1.0, 2.0, 4.0),
+                        scan="circular", scan_period=PDW_SCAN, **common),  # frequency- and PW-agile
+         DescriptorSpec(frequency_std=5.0, scan="sector", scan_period=PDW_SCAN, sector=90.0, **common),
+         DescriptorSpec(frequency_std=1.0, **common))[kind]  # the last: a tracker, its beam on the receiver
+    mod = Modulation("stagger", pattern=(1.0, 1.3, 1.7)) if i % 5 == 4 else Modulation()
+    return SourceSpec(period=PDW_PRI, modulation=mod, amplitude=PDW_ERP, descriptors=d)
+
+
+def pdw_v0() -> Suite:
+    e = []
+    for rx, receiver in PDW_RECEIVERS.items():
+        scenes = [(n, 10_000, blind) for n in (5, 10, 30, 90) for blind in (False, True)] + [(90, 100_000, True)]
+        for n, n_pulses, blind in scenes:
+            budget = min(256, max(16, 2 ** math.ceil(math.log2(1.5 * n))))
+            name = f"pdw-{rx}-n{n}" + ("-blind" if blind else "") + ("-100k" if n_pulses > 10_000 else "")
+            e.append(entry(ScenarioSpec(
+                name=name, sources=tuple(pdw_emitter(i) for i in range(n)), n_pulses=n_pulses, toa_jitter_std=0.05,
+                spurious_rate=0.01, amplitudes=True, amplitude_noise_std=0.01, receiver=receiver,
+                blind=blind, label_budget=budget if blind else 0,
+                priors=PriorSpec(kind="none") if blind else PDW_PRIORS,
+                description=f"{n} emitters (PRI 50 us-5 ms, 8-12 GHz, PW 0.5-50 us, any AoA; circular, sector and "
+                            f"no scans), {rx} receiver, threshold 0.05, {n_pulses} pulses; "
+                            + (f"blind, {budget} labels" if blind else "priors: periods 1 % off, phases 5 %, "
+                               "the emitter library's descriptor means and spreads")),
+                ["pdw", "agile", "missing", "spurious"] + (["blind"] if blind else []),
+                {"receiver": rx, "n_sources": n, "n_pulses": n_pulses, "blind": blind},
+                n_test=2 if n_pulses > 10_000 else 10))
+    return Suite("pdw-v0", 0, "Pulse descriptor words (frequency, pulse width, AoA, scan-shaped amplitude) as in the "
+                 "Turing Synthetic Radar Dataset: 5-90 emitters overlapping in every descriptor, staring and scanning "
+                 "receivers, anchored and blind.", tuple(e))
+
+
 BUILDERS = {"paper-v0": paper_v0, "paper-v1": paper_v1, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,
-            "agile-v1": agile_v1, "agile-v2": agile_v2, "scale-v0": scale_v0, "blind-v0": blind_v0}
+            "agile-v1": agile_v1, "agile-v2": agile_v2, "scale-v0": scale_v0, "blind-v0": blind_v0,
+            "pdw-v0": pdw_v0}
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -8,6 +8,13 @@ against torch in the tests) and `beam_scores`, the same arithmetic compiled by n
 pulse row (checked against `scores`), which the decoder calls once per pulse.  Only the scenario's own tracks are
 passed in (absent tracks are masked out of the attention, the pooling and the softmax in the torch
 network, so dropping them gives the same result).
+
+The `agent` policy (`agents.policy.AgentPolicy`) plays a checkpoint's greedy labels through
+`TrackLogits` (the track network) or `MLPLogits` (SB3's MlpPolicy), one compiled call per step for the
+pulses of every episode it plays in lock-step.  Their kernels multiply with plain loops, not BLAS: a
+BLAS product may sum in another order for another number of rows (a gemv path for one row, blocked
+kernels for many), and a row's logits must not depend on which other episodes share its batch, so
+that a batched play gives exactly the labels of playing each episode alone.
 """
 
 from __future__ import annotations
@@ -218,3 +225,186 @@ def _beam_scores(tracks, pulse, e0t, e0p, b0, e2, b2, attention, heads, w_in, b_
         z = value[r, 0] + consts[2]
         consistent[r] = -np.logaddexp(0.0, -z) if z > -30.0 else z
     return logp, consistent
+
+
+# ---------------------------------------------------------------------------------------------------
+# batch-invariant forward passes for the `agent` policy (module doc)
+# ---------------------------------------------------------------------------------------------------
+MASKED = np.float32(-1e8)  # an absent track's logit, as agents.networks.MASKED
+
+
+@njit(cache=True)
+def _dense(x, w, b, act):
+    """act(x @ w + b) (act: 0 none, 1 relu, 2 tanh).  Every output is b, then + x[r, k] * w[k, c] in k
+    order, each product and sum rounded (no fused multiply-add, no reordering): the same bits whichever
+    loop (a block of eight rows, or one row) computes it, so a row's result does not depend on the rows
+    beside it.  Eight rows share each load of w."""
+    rows, n_in = x.shape
+    n_out = w.shape[1]
+    out = np.empty((rows, n_out), np.float32)
+    for r in range(rows):
+        out[r] = b
+    r = 0
+    while r + 8 <= rows:
+        a0, a1, a2, a3, a4, a5, a6, a7 = (out[r], out[r + 1], out[r + 2], out[r + 3], out[r + 4], out[r + 5],
+                                          out[r + 6], out[r + 7])
+        for k in range(n_in):
+            x0, x1, x2, x3 = x[r, k], x[r + 1, k], x[r + 2, k], x[r + 3, k]
+            x4, x5, x6, x7 = x[r + 4, k], x[r + 5, k], x[r + 6, k], x[r + 7, k]
+            wk = w[k]
+            for c in range(n_out):  # contiguous rows of w: the compiler vectorises this loop
+                wc = wk[c]
+                a0[c] += x0 * wc
+                a1[c] += x1 * wc
+                a2[c] += x2 * wc
+                a3[c] += x3 * wc
+                a4[c] += x4 * wc
+                a5[c] += x5 * wc
+                a6[c] += x6 * wc
+                a7[c] += x7 * wc
+        r += 8
+    for q in range(r, rows):
+        a0 = out[q]
+        for k in range(n_in):
+            x0 = x[q, k]
+            wk = w[k]
+            for c in range(n_out):
+                a0[c] += x0 * wk[c]
+    if act == 1:
+        for q in range(rows):
+            for c in range(n_out):
+                out[q, c] = max(out[q, c], np.float32(0.0))
+    elif act == 2:
+        for q in range(rows):
+            for c in range(n_out):
+                out[q, c] = np.tanh(out[q, c])
+    return out
+
+
+@njit(cache=True)
+def _track_logits(tracks, pulse, n, e0t, e0p, b0, e2, b2, attention, heads, w_in, b_in, w_out, b_out, ln_w, ln_b,
+                  s0, sb0, s2, p0, pb0, sp, consts):
+    """The track network's logits (K, M + 1) for K episodes' observations: row r's first n[r] tracks of
+    tracks (K, M, F), its pulse row (K, G); absent tracks get MASKED, spurious is column M.  The
+    arithmetic of `NumpyTrackNet.forward`; the tracks of all rows go through each layer together, and
+    every row's numbers depend on that row alone (`_dense`; the attention and pooling loops run per row)."""
+    k, m, f = tracks.shape
+    d = b0.shape[0]
+    start = np.zeros(k + 1, np.int64)
+    for r in range(k):
+        start[r + 1] = start[r] + n[r]
+    tokens = np.empty((start[k], f), np.float32)
+    for r in range(k):
+        tokens[start[r]:start[r + 1]] = tracks[r, :n[r]]
+    # embed(cat(token, pulse)) = token @ W[:F] + (pulse @ W[F:] + b): the pulse part once per row
+    pe = _dense(pulse, e0p, b0, 0)
+    h = _dense(tokens, e0t, np.zeros(d, np.float32), 0)
+    for r in range(k):
+        for i in range(start[r], start[r + 1]):
+            for c in range(d):
+                h[i, c] = max(h[i, c] + pe[r, c], np.float32(0.0))
+    h = _dense(h, e2, b2, 1)
+    if attention:
+        dh = d // heads
+        scale = np.float32(1.0 / np.sqrt(dh))
+        qkv = _dense(h, w_in, b_in, 0)
+        att = np.zeros((start[k], d), np.float32)
+        s = np.empty(m, np.float32)
+        for r in range(k):
+            lo, hi = start[r], start[r + 1]
+            for hh in range(heads):
+                o = hh * dh
+                for i in range(lo, hi):
+                    qi = qkv[i, o:o + dh]
+                    top = np.float32(-np.inf)
+                    for j in range(lo, hi):
+                        kj = qkv[j, d + o:d + o + dh]
+                        acc = np.float32(0.0)
+                        for c in range(dh):
+                            acc += qi[c] * kj[c]
+                        s[j - lo] = acc * scale
+                        top = max(top, s[j - lo])
+                    tot = np.float32(0.0)
+                    for j in range(hi - lo):
+                        s[j] = np.exp(s[j] - top)
+                        tot += s[j]
+                    ai = att[i, o:o + dh]
+                    for j in range(lo, hi):
+                        wj = s[j - lo] / tot
+                        vj = qkv[j, 2 * d + o:2 * d + o + dh]
+                        for c in range(dh):
+                            ai[c] += wj * vj[c]
+        x = _dense(att, w_out, b_out, 0)
+        for a in range(start[k]):
+            mu = np.float32(0.0)
+            for c in range(d):
+                x[a, c] += h[a, c]
+                mu += x[a, c]
+            mu /= d
+            var = np.float32(0.0)
+            for c in range(d):
+                var += (x[a, c] - mu) ** 2
+            inv = np.float32(1.0) / np.sqrt(var / d + np.float32(LAYER_NORM_EPS))
+            for c in range(d):
+                h[a, c] = (x[a, c] - mu) * inv * ln_w[c] + ln_b[c]
+    track_logit = _dense(_dense(h, s0, sb0, 1), s2, consts[:1], 0)
+    pooled_in = np.empty((k, 2 * d + pulse.shape[1]), np.float32)
+    out = np.full((k, m + 1), MASKED)
+    for r in range(k):
+        lo, hi = start[r], start[r + 1]
+        for i in range(lo, hi):
+            out[r, i - lo] = track_logit[i, 0]
+        for c in range(d):
+            tot = np.float32(0.0)
+            top = np.float32(-np.inf)
+            for i in range(lo, hi):
+                tot += h[i, c]
+                top = max(top, h[i, c])
+            pooled_in[r, c] = tot / (hi - lo)
+            pooled_in[r, d + c] = top
+        pooled_in[r, 2 * d:] = pulse[r]
+    spurious = _dense(_dense(pooled_in, p0, pb0, 1), sp, consts[1:2], 0)
+    for r in range(k):
+        out[r, m] = spurious[r, 0]
+    return out
+
+
+class TrackLogits:
+    """The track network's actor logits for a batch of token observations, batch-invariant (module doc).
+    `__call__(tracks (K, M, F), pulse (K, G), n (K,))` -> (K, M + 1) float32: absent tracks MASKED, as
+    the torch network's logits (to float32 rounding)."""
+
+    def __init__(self, net: NumpyTrackNet, n_features: int):
+        empty2, empty1 = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)
+        att = (net.w_in, net.b_in, net.w_out, net.b_out, net.ln_w, net.ln_b) if net.attention else (
+            empty2, empty1, empty2, empty1, empty1, empty1)
+        f = n_features  # the embedding's rows: F token features, then G pulse features
+        self._weights = (np.ascontiguousarray(net.e0[:f]), np.ascontiguousarray(net.e0[f:]), net.b0, net.e2, net.b2,
+                         net.attention, getattr(net, "heads", 1), *att, net.s0, net.sb0, net.s2, net.p0, net.pb0,
+                         net.sp, np.array([net.sb2[0], net.spb[0]], np.float32))
+
+    def __call__(self, tracks: np.ndarray, pulse: np.ndarray, n: np.ndarray) -> np.ndarray:
+        return _track_logits(np.ascontiguousarray(tracks, np.float32), np.ascontiguousarray(pulse, np.float32),
+                             np.asarray(n, np.int64), *self._weights)
+
+
+ACTIVATIONS = {"relu": 1, "tanh": 2}
+
+
+class MLPLogits:
+    """SB3's MlpPolicy actor (`net_arch` hidden layers of `activation`, then the action layer) on flat
+    observations (K, D) -> logits (K, A) float32, batch-invariant (module doc)."""
+
+    def __init__(self, tensors: dict[str, Any], net_arch: list[int], activation: str):
+        w = {k: np.asarray(v.detach().cpu().numpy() if hasattr(v, "detach") else v, np.float32)
+             for k, v in tensors.items()}
+        act = ACTIVATIONS[activation]
+        self._layers = [(np.ascontiguousarray(w[f"mlp_extractor.policy_net.{2 * i}.weight"].T),
+                         w[f"mlp_extractor.policy_net.{2 * i}.bias"], act) for i in range(len(net_arch))]
+        self._layers.append((np.ascontiguousarray(w["action_net.weight"].T), w["action_net.bias"], 0))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        x = np.ascontiguousarray(x, np.float32)
+        for weight, bias, act in self._layers:
+            x = _dense(x, weight, bias, act)
+        return x

@@ -2,8 +2,11 @@
 
 The checkpoint's JSON names the architecture and the feature layout; the policy rebuilds the
 network (`agents.networks.build_policy`), fills it from the safetensors weights, and acts on the
-same features the agent trained on (the token layout 2 of `deint_env.features`, or the flat pulse
-layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  A recurrent network
+same features the agent trained on (the token layouts 2 and 3 of `deint_env.features`, or the flat
+pulse layout 1 of `deint_env.wrappers`).  Its lag is the layout's look-ahead.  At play time the track
+network and SB3's MlpPolicy run as compiled copies of the weights (`agents.fast_net`), which give
+torch's labels (checked on every core-v0 scenario) at a small fraction of its per-call cost; the
+policy plays many episodes in lock-step too (`deint_env.policies.BatchPolicy`), as the runner does.  A recurrent network
 (RecurrentPPO's) carries its LSTM state from step to step, stepping on every env step as in training
 (look-ahead and padding steps too, which label nothing), and starts each episode from zeros.
 `version` is the checkpoint's content hash: records of a retrained checkpoint written to the same
@@ -25,7 +28,7 @@ from agents.ablation import NETWORK, network_off
 from agents.beam import VERSION as BEAM_VERSION
 from agents.beam import BeamDecoder
 from agents.checkpoint import Checkpoint, load_checkpoint
-from agents.fast_net import NumpyTrackNet
+from agents.fast_net import MLPLogits, NumpyTrackNet, TrackLogits
 from agents.networks import (PulseLayout, RecurrentTrackPolicy, action_scores, build_policy, layout_from_dict,
                              load_weights, recurrent_scores)
 from deint_env.episode import Priors
@@ -84,7 +87,15 @@ BEAM_PARAMS = declare(
 
 class AgentPolicy:
     """A learned agent from a checkpoint (module doc).  `deterministic=False` samples its labels,
-    seeded per episode from the runner's policy seed."""
+    seeded per episode from the runner's policy seed.
+
+    It is a `deint_env.policies.BatchPolicy`: `reset_batch(K)`, `reset_row`, `act_batch` play K episodes
+    in lock-step (`deint_env.runner.play_batch`), their features computed together and their pulses
+    scored in one call; `reset`/`act` are a batch of one.  The track network (`track-net`) and SB3's
+    MlpPolicy (`sb3-mlp`) are scored by the compiled, batch-invariant copies of `agents.fast_net`
+    (torch's per-call overhead is most of a step's time at a batch of one; those copies make a row's
+    labels independent of the other rows); other networks (DQN's, the recurrent one) by torch, one row
+    per call, so a batch labels as each episode alone does."""
 
     PARAMS = PARAMS
 
@@ -99,16 +110,23 @@ class AgentPolicy:
         self.layout = layout_from_dict(ck.meta.features)
         self.lag = self.layout.lookahead
         self._name = Path(self.checkpoint).name
-        self._rng: np.random.Generator | None = None
         self._recurrent = isinstance(self._net, RecurrentTrackPolicy)
-        self._state: tuple[torch.Tensor, torch.Tensor] | None = None
-        if isinstance(self.layout, PulseLayout):
-            self._tracker: FeatureTracker | None = FeatureTracker(self.layout.n_labels, lag=0)
-            self._tokens: TrackFeatures | None = None
-        else:
-            self._tracker, self._tokens = None, TrackFeatures(1, self.layout)
+        self._fast = None if self._off else fast_logits(self.checkpoint)
+        self.reset_batch(1)
 
-    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+    # ---- a batch of episodes (deint_env.policies.BatchPolicy) -------------------------------------------
+    def reset_batch(self, n: int) -> None:
+        """`n` rows, each idle until `reset_row` starts an episode in it."""
+        self._n_rows = n
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._spurious = np.zeros(n, np.int64)
+        if isinstance(self.layout, PulseLayout):
+            self._trackers = [FeatureTracker(self.layout.n_labels, lag=0) for _ in range(n)]
+        else:
+            self._tokens = TrackFeatures(n, self.layout)
+            self._states: list[tuple[torch.Tensor, torch.Tensor] | None] = [None] * n
+
+    def reset_row(self, row: int, priors: Priors, info: dict[str, Any]) -> None:
         if isinstance(self.layout, PulseLayout):
             if priors.blind:
                 raise NotApplicable(f"agent {self._name} uses the pulse features, which need anchored priors; "
@@ -116,54 +134,109 @@ class AgentPolicy:
             if priors.n_labels != self.layout.n_labels:
                 raise NotApplicable(f"agent {self._name} was trained for {self.layout.n_labels} tracks "
                                     f"({', '.join(self.meta.scenarios)}); this scenario has {priors.n_labels}")
-            self._tracker.reset(priors)
+            self._trackers[row].reset(priors)
         else:
             if priors.n_labels > self.layout.max_tracks:
                 raise NotApplicable(f"agent {self._name} holds at most {self.layout.max_tracks} tracks; this "
                                     f"scenario has {priors.n_labels}")
-            self._tokens.reset_rows([0], [priors], [bool(info.get("has_amplitude", False))])
-            self._spurious = priors.n_labels
+            self._tokens.reset_rows([row], [priors], [bool(info.get("has_amplitude", False))])
             if self._recurrent:
-                self._state = self._net.initial_state(1)
-        self._rng = None if self.deterministic else policy_rng(info, None)
+                self._states[row] = self._net.initial_state(1)
+        self._spurious[row] = priors.n_labels
+        self._rngs[row] = None if self.deterministic else policy_rng(info, None)
 
-    def _scores(self, features: np.ndarray) -> np.ndarray:
-        """The network's action scores, or with `network=off` all 0 (its output zeroed: no forward pass)."""
+    def act_batch(self, rows: np.ndarray, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The labels of `rows` (their episodes' next steps) from their stacked raw observations."""
+        if isinstance(self.layout, PulseLayout):
+            return self._act_pulse(rows, obs)
+        tok = self._tokens
+        toa, amp, valid = np.zeros(self._n_rows), np.zeros(self._n_rows), np.zeros(self._n_rows, bool)
+        toa[rows], amp[rows] = np.reshape(obs["toa"], -1), np.reshape(obs["amplitude"], -1)
+        valid[rows] = obs["valid"]
+        tok.observe(toa, amp, valid)  # idle rows take a padding observation: they hold no pulse, so stay idle
+        is_ready = tok.ready[rows]
+        ready = rows[is_ready]
+        if self._recurrent and not self._off:  # the memory steps on every env step, as it did in training
+            full = tok.observation()
+            logits = {}
+            for r in rows.tolist():
+                logits[r], self._states[r] = recurrent_scores(
+                    self._net, {k: v[r:r + 1] for k, v in full.items()}, self._states[r], np.zeros(1))
+        actions = np.zeros(self._n_rows, np.int64)
+        if ready.size:
+            masks = tok.action_masks()
+            if self._off:
+                scores = np.zeros((len(ready), masks.shape[1]))
+            elif self._recurrent:
+                scores = np.concatenate([logits[r].numpy() for r in ready.tolist()])
+            else:
+                scores = self._token_scores(ready)
+            actions[ready] = self._choose(ready, scores, masks[ready])
+            tok.label(actions)
+        # a row that labels nothing (a look-ahead or padding step) answers 0, which the env ignores
+        return np.where(is_ready, tok.env_actions(actions, self._spurious)[rows], 0)
+
+    def _token_scores(self, ready: np.ndarray) -> np.ndarray:
+        """The network's action scores of the `ready` rows' observations."""
+        tok = self._tokens
+        if self.layout.flat:
+            x = tok.observation()[ready]
+            if self._fast is not None:
+                return self._fast(x)
+            return np.concatenate([action_scores(self._net, x[i:i + 1]).numpy() for i in range(len(x))])
+        tracks, pulse = tok.arrays()
+        if self._fast is not None:
+            return self._fast(tracks[ready], pulse[ready], tok.n_labels[ready])
+        mask = tok.exists.astype(np.float32)
+        return np.concatenate([action_scores(self._net, {"tracks": tracks[r:r + 1], "mask": mask[r:r + 1],
+                                                         "pulse": pulse[r:r + 1]}).numpy() for r in ready.tolist()])
+
+    def _act_pulse(self, rows: np.ndarray, obs: dict[str, np.ndarray]) -> np.ndarray:
+        out = np.zeros(len(rows), np.int64)
+        ready = []
+        for i, r in enumerate(rows.tolist()):
+            tracker = self._trackers[r]
+            tracker.observe({"toa": obs["toa"][i], "amplitude": obs["amplitude"][i], "valid": obs["valid"][i]})
+            if tracker.ready:
+                ready.append(i)
+        if not ready:
+            return out
+        features = np.stack([self._trackers[rows[i]].features() for i in ready])
         if self._off:
-            return np.zeros(self.layout.n_actions)
-        return action_scores(self._net, features)[0].numpy()
+            scores = np.zeros((len(ready), self.layout.n_actions))
+        elif self._fast is not None:
+            scores = self._fast(features)
+        else:
+            scores = np.concatenate([action_scores(self._net, f[None, :]).numpy() for f in features])
+        out[ready] = self._choose(rows[ready], scores, None)
+        for i in ready:
+            self._trackers[rows[i]].label(int(out[i]))
+        return out
 
-    def _choose(self, scores: np.ndarray, mask: np.ndarray | None) -> int:
+    def _choose(self, rows: np.ndarray, scores: np.ndarray, masks: np.ndarray | None) -> np.ndarray:
+        """Each row's action from its scores (K, A): the likeliest allowed one, or one drawn from the
+        softmax by the row's own generator (`deterministic=False`)."""
         scores = scores.astype(np.float64)
-        if mask is not None:
-            scores = np.where(mask, scores, -np.inf)
-        if self._rng is None:
-            return int(np.argmax(scores))
-        p = np.exp(scores - scores.max())
-        return int(self._rng.choice(len(p), p=p / p.sum()))
+        if masks is not None:
+            scores = np.where(masks, scores, -np.inf)
+        actions = np.argmax(scores, axis=1)
+        if not self.deterministic:
+            for i, r in enumerate(rows.tolist()):
+                p = np.exp(scores[i] - scores[i].max())
+                actions[i] = self._rngs[r].choice(len(p), p=p / p.sum())
+        return actions
+
+    # ---- one episode (deint_env.policies.Policy) ------------------------------------------------------
+    def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        self.reset_batch(1)
+        self.reset_row(0, priors, info)
 
     def act(self, obs: dict[str, Any]) -> int:
-        if self._tracker is not None:
-            tracker = self._tracker
-            tracker.observe(obs)
-            if not tracker.ready:
-                return 0
-            label = self._choose(self._scores(tracker.features()[None, :]), None)
-            tracker.label(label)
-            return label
-        tok = self._tokens
-        tok.observe(obs["toa"], obs["amplitude"], obs["valid"])
-        if self._recurrent and not self._off:  # the memory steps on every env step, as it did in training
-            logits, self._state = recurrent_scores(self._net, tok.observation(), self._state, np.zeros(1))
-        if not tok.ready[0]:
-            return 0  # labels nothing (a look-ahead step or a padding step)
-        if self._off:
-            scores = np.zeros(tok.action_masks().shape[1])
-        else:
-            scores = (logits if self._recurrent else action_scores(self._net, tok.observation()))[0].numpy()
-        action = self._choose(scores, tok.action_masks()[0])
-        tok.label(np.array([action]))
-        return int(tok.env_actions(np.array([action]), self._spurious)[0])
+        return int(self.act_batch(_ROW0, {"toa": obs["toa"][None], "amplitude": obs["amplitude"][None],
+                                          "valid": np.reshape(obs["valid"], 1)})[0])
+
+
+_ROW0 = np.zeros(1, np.int64)
 
 
 def agent(checkpoint: str, deterministic: bool = True, network: str = "on") -> Any:
@@ -240,6 +313,26 @@ def numpy_net(checkpoint: str | os.PathLike, off: bool = False) -> NumpyTrackNet
     path = Path(checkpoint).resolve()
     st = path.stat()
     return _numpy_net(str(path), st.st_mtime_ns, st.st_size, off)
+
+
+@functools.lru_cache(maxsize=8)
+def _fast_logits(path: str, mtime_ns: int, size: int) -> TrackLogits | MLPLogits | None:
+    ck, _ = _load(path, mtime_ns, size)
+    arch, layout = ck.meta.architecture, layout_from_dict(ck.meta.features)
+    if arch.get("name") == "track-net":
+        return TrackLogits(_numpy_net(path, mtime_ns, size, False), len(layout.token_names))
+    if arch.get("name") == "sb3-mlp":
+        return MLPLogits(ck.tensors, arch["net_arch"], arch.get("activation", "tanh"))
+    return None
+
+
+def fast_logits(checkpoint: str | os.PathLike) -> TrackLogits | MLPLogits | None:
+    """The checkpoint's actor logits as a compiled batch-invariant function (`agents.fast_net`), or None
+    for a network it does not cover (DQN's, the recurrent one: torch scores those), once per process and
+    file version."""
+    path = Path(checkpoint).resolve()
+    st = path.stat()
+    return _fast_logits(str(path), st.st_mtime_ns, st.st_size)
 
 
 def dagger(deterministic: bool = True, network: str = "on") -> AgentPolicy:

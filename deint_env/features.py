@@ -8,8 +8,10 @@ network can therefore play 2 to M sources, anchored (tracks = the prior tracks) 
 the labels the agent opened itself; a track's period is learned from its own labels).
 
 Everything is batched: `TrackFeatures` holds the state of N episodes in (N, M) numpy arrays and
-computes all N observations with a handful of array operations, so the same code serves a single
-env (N = 1), the native vector env and the multi-scenario env, and gives identical features in all.
+computes all N observations in one compiled call (`deint_env.features_kernels`, row by row: at N = 1,
+numpy's per-call overhead made the features most of a learned agent's time), so the same code serves a
+single env (N = 1), the native vector env, the multi-scenario env and the `agent` policy playing
+episodes alone or in lock-step, and gives identical features in all.
 
 Token features (per track i; all 0 for absent tracks and for steps that label nothing), with P the
 track's period estimate (the prior period shrunk towards the agent's own labelled intervals; blind:
@@ -231,44 +233,15 @@ class TrackFeatures:
         self.first_toa = np.where(np.isfinite(self.first_toa), self.first_toa, self.win_toa[:, -1])
 
     def label(self, actions: np.ndarray) -> None:
-        """Record each ready row's label (0..M-1 a track, M or an absent track: spurious)."""
-        a = np.asarray(actions, np.int64)
-        ready = self.ready
-        rows = np.flatnonzero(ready & (a >= 0) & (a < self.n_labels))
-        self.labelled += ready
-        if rows.size == 0:
-            self._drop_head(ready)
-            return
-        i = a[rows]
-        t, amp = self.win_toa[rows, 1], self.win_amp[rows, 1]
-        count, period, anchor = self.count[rows, i], self.period[rows, i], self.anchor[rows, i]
-        d = t - anchor
-        used = count > 0
-        known = used & np.isfinite(period)
-        n = np.maximum(np.rint(np.where(known, d / np.where(known, period, 1.0), 1.0)), 1.0)
-        gate = known & (np.abs(d - n * period) <= PERIOD_GATE * period)
-        span_t = self.span_time[rows, i] + np.where(gate, d, 0.0)
-        span_n = self.span_periods[rows, i] + np.where(gate, n, 0.0)
-        first_interval = used & ~np.isfinite(period) & (d > 0)  # blind: a track's second pulse gives its first period
-        span_t = np.where(first_interval, d, span_t)
-        span_n = np.where(first_interval, 1.0, span_n)
-        p0 = self.prior_period[rows, i]
-        anchored = np.isfinite(p0)
-        new_period = np.where(anchored, (PRIOR_WEIGHT * np.where(anchored, p0, 0.0) + span_t)
-                              / (PRIOR_WEIGHT + span_n), span_t / np.maximum(span_n, 1.0))
-        self.period[rows, i] = np.where(gate | first_interval, new_period, period)
-        self.span_time[rows, i], self.span_periods[rows, i] = span_t, span_n
-        self.anchor[rows, i] = t
-        self.count[rows, i] = count + 1
-        # Amplitude: the prior mean gives way to the mean of the labelled pulses.
-        mean = self.amp_mean[rows, i]
-        self.amp_mean[rows, i] = np.where(used & np.isfinite(mean), mean + (amp - mean) / (count + 1), amp)
-        self._drop_head(ready)
+        """Record each ready row's label (0..M-1 a track, M or an absent track: spurious), in one compiled
+        call (`deint_env.features_kernels.label_rows`): a labelled interval within PERIOD_GATE of a
+        period of the predicted arrival moves the track's period estimate, the prior weighing
+        PRIOR_WEIGHT periods (blind: a track's second pulse gives its first period)."""
+        from deint_env.features_kernels import label_rows  # numba loads with the first label, not the module
 
-    def _drop_head(self, ready: np.ndarray) -> None:
-        # The labelled pulse becomes "previous"; the window column 1 is then refilled by `observe`.
-        self.win_toa[ready, 0] = self.win_toa[ready, 1]
-        self.win_toa[ready, 1] = np.nan
+        label_rows(np.asarray(actions, np.int64), self.n_labels, self.win_toa, self.win_amp, self.labelled,
+                   self.count, self.period, self.anchor, self.span_time, self.span_periods, self.prior_period,
+                   self.amp_mean, PERIOD_GATE, PRIOR_WEIGHT)
 
     # ---- the observation -----------------------------------------------------------------------------
     def action_masks(self) -> np.ndarray:
@@ -276,41 +249,21 @@ class TrackFeatures:
         return np.concatenate([self.exists, np.ones((self.n, 1), bool)], axis=1)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(tracks (N, M, F), pulse (N, G)) float32."""
+        """(tracks (N, M, F), pulse (N, G)) float32, in one compiled call (`deint_env.features_kernels`,
+        which keeps the formulas of the module doc operation for operation; the logarithms come from numpy
+        here, see there)."""
+        from deint_env.features_kernels import token_arrays  # numba loads with the first observation, not the module
+
         lay = self.layout
         with np.errstate(invalid="ignore", divide="ignore"):
-            ready = self.ready
-            t, prev = self.win_toa[:, 1], self.win_toa[:, 0]
-            tt = t[:, None]
-            unit = (t - self.first_toa) / np.maximum(self.labelled, 1)
-            unit = np.where((self.labelled > 0) & (unit > 0), unit, np.nan)
-            u = unit[:, None]
-            p = self.period
-            since = (tt - self.anchor) / p
-            n = np.maximum(np.rint(since), 1.0)
-            tok = [self.exists, self.count > 0, np.log1p(self.count), np.isfinite(p), np.isfinite(self.anchor),
-                   since, since - n, n - 1, (t - prev)[:, None] / p, np.log(p / u), (tt - self.anchor) / u,
-                   (self.win_amp[:, 1:2] - self.amp_mean) / np.where(self.blind[:, None], np.abs(
-                       self.win_amp[:, 1:2]) + 1e-12, self.amp_scale), p / self.prior_period - 1.0]
-            v3 = lay.version >= 3
-            if v3:
-                p_sigma = p / np.maximum(self.scalars[:, 2:3], 1e-3 * p)  # period / jitter std
-                tok.append((since - n) * p_sigma)
-            pulse = [ready, ready & ~np.isfinite(prev), self.blind, self.n_labels / lay.max_tracks,
-                     self.scalars[:, 0], self.scalars[:, 1], self.scalars[:, 2] / unit, self.has_amp]
-            for j in range(1, lay.lookahead + 1):
-                tj = self.win_toa[:, 1 + j]
-                ahead = _resid((tj[:, None] - self.anchor) / p)
-                ahead_self = _resid((tj - t)[:, None] / p)
-                tok += [ahead, ahead_self] + ([ahead * p_sigma, ahead_self * p_sigma] if v3 else [])
-                pulse += [np.isfinite(tj), (tj - t) / unit]
-            tracks = np.stack(np.broadcast_arrays(*tok), axis=-1).astype(np.float64)
-            tracks[~self.has_amp, :, TOKEN_FEATURES.index("amp")] = 0.0
-            keep = (self.exists & ready[:, None])[:, :, None]
-            tracks = np.where(keep & np.isfinite(tracks), np.clip(tracks, -CLIP, CLIP), 0.0)
-            glob = np.stack([np.asarray(g, np.float64) for g in pulse], axis=-1)
-            glob = np.where(ready[:, None] & np.isfinite(glob), np.clip(glob, -CLIP, CLIP), 0.0)
-        return tracks.astype(np.float32), glob.astype(np.float32)
+            unit = (self.win_toa[:, 1] - self.first_toa) / np.maximum(self.labelled, 1)
+            unit = np.where((self.labelled > 0) & (unit > 0), unit, np.nan)  # the episode's time unit u
+            log_period = np.log(self.period / unit[:, None])
+            log_count = np.log1p(self.count)
+        return token_arrays(self.win_toa, self.win_amp, unit, self.exists, self.count, self.period, self.anchor,
+                            self.prior_period, self.amp_mean, self.amp_scale, self.blind, self.has_amp, self.scalars,
+                            self.n_labels, log_count, log_period, lay.max_tracks, lay.lookahead, lay.version >= 3,
+                            len(lay.token_names), len(lay.pulse_names), CLIP)
 
     def observation(self) -> dict[str, np.ndarray] | np.ndarray:
         """The batched observation in the layout's form (Dict of arrays, or flat (N, G + M F))."""

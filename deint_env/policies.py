@@ -56,6 +56,26 @@ class Policy(Protocol):
     def act(self, obs: dict[str, Any]) -> int: ...
 
 
+@runtime_checkable
+class BatchPolicy(Policy, Protocol):
+    """A policy that also plays K episodes in lock-step (`deint_env.runner.play_batch`), as a vectorised
+    policy serves SB3's `evaluate_policy` over a VecEnv: one call per step for the pulses of all K, so a
+    network's forward pass and a policy's per-call overheads are paid once for K pulses.
+
+    `reset_batch(K)` makes K idle rows; `reset_row(row, priors, info)` starts an episode in one (it may
+    raise NotApplicable: that episode is not played); each step, `act_batch(rows, obs)` gets the rows whose
+    episodes are still running and their raw observations stacked (`obs[key][i]` is row `rows[i]`'s, as `act`
+    would get it) and returns their labels in that order.  A finished episode's row drops out of `rows`.
+    A row's labels must not depend on the other rows: a batch labels exactly as each episode alone.  A
+    batched play collects no `estimates()`."""
+
+    def reset_batch(self, n: int) -> None: ...
+
+    def reset_row(self, row: int, priors: Priors, info: dict[str, Any]) -> None: ...
+
+    def act_batch(self, rows: np.ndarray, obs: dict[str, np.ndarray]) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class Limits:
     """What a policy's defaults can play (None: no limit); parameters may move them (tree's max_pulses)."""
@@ -303,19 +323,15 @@ def make_policy(spec: str) -> Policy:
 
 def _check_modes(policy: Policy, info: PolicyInfo) -> None:
     """The one check of the modes a policy plays and of its track limit (`Limits.max_sources`), from the
-    registry: its `reset` refuses a scenario of another mode, or with more prior tracks (a blind one's
-    label budget) than it handles, as not applicable, before the policy sees it.  (An instance attribute
-    wraps the bound method, so the policy stays itself: its type, attributes and `act` are untouched.)"""
+    registry: its `reset` (and a BatchPolicy's `reset_row`) refuses a scenario of another mode, or with
+    more prior tracks (a blind one's label budget) than it handles, as not applicable, before the policy
+    sees it.  (An instance attribute wraps the bound method, so the policy stays itself: its type,
+    attributes and `act` are untouched.)"""
     limit = info.limits.max_sources
     if set(info.modes) == set(MODES) and limit is None:
         return
-    # the wrapper holds the bound method weakly: a strong one would make a reference cycle (policy ->
-    # wrapper -> method -> policy), and the policy, its work arrays with it, would outlive its episode until
-    # the cyclic garbage collector ran
-    bound = policy.reset
-    method = weakref.WeakMethod(bound) if inspect.ismethod(bound) else lambda: bound
 
-    def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
+    def check(priors: Priors) -> None:
         mode = "blind" if priors.blind else "anchored"
         if mode not in info.modes:
             why = ("needs priors: it plays anchored scenarios only, and blind scenarios have none" if mode == "blind"
@@ -325,9 +341,28 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
             what = "a label budget" if priors.blind else "prior tracks"
             raise NotApplicable(f"policy {info.name!r} handles at most {limit} tracks; this episode has "
                                 f"{priors.n_labels} {what}")
-        method()(priors, episode_info)
+
+    # the wrappers hold the bound methods weakly: a strong one would make a reference cycle (policy ->
+    # wrapper -> method -> policy), and the policy, its work arrays with it, would outlive its episode until
+    # the cyclic garbage collector ran
+    def weak(bound: Callable[..., None]) -> Callable[[], Callable[..., None]]:
+        return weakref.WeakMethod(bound) if inspect.ismethod(bound) else lambda: bound
+
+    reset = weak(policy.reset)
+
+    def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
+        check(priors)
+        reset()(priors, episode_info)
 
     policy.reset = checked_reset  # type: ignore[method-assign]
+    if isinstance(policy, BatchPolicy):  # a batch's episodes pass the same check
+        reset_row = weak(policy.reset_row)
+
+        def checked_reset_row(row: int, priors: Priors, episode_info: dict[str, Any]) -> None:
+            check(priors)
+            reset_row()(row, priors, episode_info)
+
+        policy.reset_row = checked_reset_row  # type: ignore[method-assign]
 
 
 def spec_version(spec: str, policy: Policy | None = None) -> int | str:

@@ -8,7 +8,10 @@ in it, so an interrupted run resumes where it stopped.  Records are keyed on the
 spec and its registry `version`: records of another version are stale and replayed, never mixed in.
 
 A job plays the policy through the env (`play`): the policy sees only observations and the public
-priors (oracles also get the episode) and its compute time is measured.  Each record also carries the
+priors (oracles also get the episode) and its compute time is measured.  A policy that plays episodes
+in lock-step (`deint_env.policies.BatchPolicy`: the `agent` family) has its jobs grouped into batches,
+one worker task each (`make_tasks`), played by `play_batch` with the labels each would get alone; each
+of a batch's records carries the batch's compute time per pulse.  Each record also carries the
 episode's genie and random accuracies, so the normalised score (acc - random) / (genie - random) needs
 nothing else.  A policy that fails on an episode -- an exception, a label that is not an exact integer
 in range, a worker process that dies -- gets a fault record for it (its error, one line) and the run
@@ -32,7 +35,7 @@ from collections import Counter, deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -42,7 +45,8 @@ from deint_env.episode import Episode, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.labels import correct_anchored, correct_link
 from deint_env.metrics import estimation_metrics, matched_labels, normalised_score
-from deint_env.policies import Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec, spec_version
+from deint_env.policies import (BatchPolicy, Policy, canonical_spec, is_oracle, make_policy, parse_policy_spec,
+                                spec_version)
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, RecordKey, ResultsWriter, json_ready, read_records, results_lock
 from deint_env.scenario import ScenarioSpec
@@ -103,6 +107,66 @@ def play(policy: Policy, episode: Episode, *, policy_seed: int = 0, oracle: bool
         est = policy.estimates()
         estimates = {k: np.asarray(v, dtype=np.float64) for k, v in est.items()} if est is not None else None
     return PlayResult(env.labels.copy(), env.metrics() if scored else {}, estimates, spent)
+
+
+def play_batch(policy: BatchPolicy, episodes: Sequence[Episode], *, policy_seeds: Sequence[int] | None = None,
+               clustering: bool = True, scored: bool = True) -> list[PlayResult | NotApplicable]:
+    """Play `episodes` in lock-step through one env each, as `play` plays one: each step the policy labels
+    the next pulse of every episode still running in one `act_batch` call (`BatchPolicy`); a finished
+    episode drops out.  The labels are those `play` gives each episode alone (the protocol's promise,
+    held by tests/test_batch_play.py).  Per episode: its PlayResult, or the NotApplicable its `reset_row`
+    raised.  The policy's time (`reset_batch`, every `reset_row` and `act_batch`) is one figure for the
+    batch, so each result's `seconds` is its share by pulses: every episode gets the batch's time per
+    pulse.  `policy_seeds`: per episode (default 0).  A failure of the policy (an exception, a bad
+    label) is raised: which episode caused it is not known (`run_batch` replays the jobs alone)."""
+    k = len(episodes)
+    seeds = [0] * k if policy_seeds is None else list(policy_seeds)
+    clock = time.perf_counter
+    t0 = clock()
+    policy.reset_batch(k)
+    spent = clock() - t0
+    outcomes: list[PlayResult | NotApplicable | None] = [None] * k
+    envs: dict[int, DeinterleaveEnv] = {}
+    obs: dict[int, dict[str, Any]] = {}
+    for i, episode in enumerate(episodes):
+        env = DeinterleaveEnv.for_episode(episode, lag=policy.lag, clustering_metrics=clustering, scored=scored)
+        obs[i], info = env.load_episode(episode)
+        info["policy_seed"] = int(seeds[i])
+        priors = Priors.from_info(info["priors"])
+        t0 = clock()
+        try:
+            policy.reset_row(i, priors, info)
+        except NotApplicable as e:
+            outcomes[i] = e
+            continue
+        finally:
+            spent += clock() - t0
+        envs[i] = env
+    live = sorted(envs)
+    keys = list(obs[live[0]]) if live else []
+    while live:
+        rows = np.array(live, np.int64)
+        batch = {key: np.stack([obs[i][key] for i in live]) for key in keys}
+        t0 = clock()
+        labels = policy.act_batch(rows, batch)
+        spent += clock() - t0
+        labels = labels.tolist() if isinstance(labels, np.ndarray) else list(labels)
+        if len(labels) != len(live):
+            raise DeintError(f"act_batch returned {len(labels)} labels for {len(live)} episodes")
+        still = []
+        for i, action in zip(live, labels):
+            env = envs[i]
+            if type(action) is not int:
+                check_label(action, env.n_labels)
+            obs[i], _, terminated, _, _ = env.step(action)
+            if terminated:
+                outcomes[i] = PlayResult(env.labels.copy(), env.metrics() if scored else {}, None, 0.0)
+            else:
+                still.append(i)
+        live = still
+    pulses = sum(len(episodes[i]) for i in envs)
+    return [replace(o, seconds=spent * len(e) / max(pulses, 1)) if isinstance(o, PlayResult) else o
+            for o, e in zip(outcomes, episodes)]
 
 
 def accuracy_of(labels: np.ndarray, episode: Episode) -> float:
@@ -249,6 +313,13 @@ def run_job(job: Job, policy: Policy | None = None) -> EpisodeRecord:
         return _record(job, spec, oracle, lag=lag, n_sources=n_sources, applicable=False, reason=str(e))
     except Exception as e:  # noqa: BLE001 -- any failure of the policy is recorded for its episode
         return _record(job, spec, oracle, lag=lag, n_sources=n_sources, fault=one_line(e))
+    return _played_record(job, spec, episode, res, oracle, lag)
+
+
+def _played_record(job: Job, spec: ScenarioSpec, episode: Episode, res: PlayResult, oracle: bool,
+                   lag: int) -> EpisodeRecord:
+    """The record of a played episode: its metrics, normalised score, estimation errors and time."""
+    n_sources = episode.truth.n_sources
     genie_acc, random_acc = reference_accuracies(episode)
     metrics: dict[str, Any] = dict(res.metrics)
     metrics.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
@@ -261,6 +332,70 @@ def run_job(job: Job, policy: Policy | None = None) -> EpisodeRecord:
         metrics.update(estimation_metrics(res.estimates, episode.truth, episode.priors.jitter_std, mapping))
     metrics["us_per_pulse"] = 1e6 * res.seconds / max(len(episode), 1)
     return _record(job, spec, oracle, lag=lag, n_sources=n_sources, metrics=json_ready(metrics))
+
+
+# How many episodes of one policy a worker task plays in lock-step when the policy is a BatchPolicy: the
+# per-step costs shared (the features' numpy calls, the forward pass's call) fall with the batch, and 64
+# holds a core-v0 board's first test seeds (45) in one batch.
+BATCH = 64
+
+
+def batch_size(spec: str) -> int:
+    """How many of `spec`'s jobs one task plays together: BATCH for a BatchPolicy (no oracle, no
+    `estimates()`, which a batched play does not collect), else 1.  Builds the policy once."""
+    if is_oracle(spec):
+        return 1
+    try:
+        policy = make_policy(spec)
+    except Exception:  # noqa: BLE001 -- a policy that cannot be built plays alone and gets its faults there
+        return 1
+    return BATCH if isinstance(policy, BatchPolicy) and not hasattr(policy, "estimates") else 1
+
+
+def run_batch(jobs: Sequence[Job]) -> list[EpisodeRecord]:
+    """Play jobs of one BatchPolicy spec in lock-step (`play_batch`) and return their records, in order,
+    each with the batch's time per pulse (after an untimed warm-up batch of the scenarios this process
+    has not played the spec on, as `run_job` warms up).  If the batch fails (an exception, a bad label),
+    every job is played alone (`run_job`), so the fault is recorded for the episode that causes it and
+    the others get the records playing alone gives."""
+    specs = [ScenarioSpec.from_dict(j.scenario) for j in jobs]
+    episodes = [simulate(s, j.seed) for s, j in zip(specs, jobs)]
+    name = jobs[0].policy
+    cold = [i for i, s in enumerate(specs) if (name, s.name) not in _WARMED]
+    if cold:
+        _WARMED.update((name, specs[i].name) for i in cold)
+        warm = [episodes[i] if len(episodes[i]) <= _WARM_FULL else
+                simulate(replace(specs[i], n_pulses=_WARM_PULSES), jobs[i].seed) for i in cold]
+        with contextlib.suppress(Exception):  # its outcome is discarded, as _warm_up's
+            play_batch(make_policy(name), warm, policy_seeds=[jobs[i].seed for i in cold], clustering=False)
+    try:
+        policy = make_policy(name)
+        results = play_batch(policy, episodes, policy_seeds=[j.seed for j in jobs])
+    except Exception:  # noqa: BLE001 -- replayed alone, where a fault is its own episode's
+        return [run_job(j) for j in jobs]
+    return [_record(j, s, False, lag=policy.lag, n_sources=e.truth.n_sources, applicable=False, reason=str(r))
+            if isinstance(r, NotApplicable) else _played_record(j, s, e, r, False, policy.lag)
+            for j, s, e, r in zip(jobs, specs, episodes, results)]
+
+
+Task = tuple[Job, ...]  # what one worker call plays: one job, or a batch of one BatchPolicy spec's jobs
+
+
+def run_task(task: Task) -> list[EpisodeRecord]:
+    return run_batch(task) if len(task) > 1 else [run_job(task[0])]
+
+
+def make_tasks(jobs: Sequence[Job], workers: int = 1) -> list[Task]:
+    """The jobs as worker tasks: a BatchPolicy spec's jobs (`batch_size`) in near-equal batches of at most
+    BATCH, at least `workers` of them when it has that many jobs (so every worker gets one), each batch
+    where its first job was in the queue; every other job alone, where it was."""
+    starting: dict[int, Task] = {}  # id(first job) -> its task
+    for spec in dict.fromkeys(j.policy for j in jobs):
+        mine = [j for j in jobs if j.policy == spec]
+        most = batch_size(spec) if len(mine) > 1 else 1
+        size = -(-len(mine) // min(max(-(-len(mine) // most), workers), len(mine))) if most > 1 else 1
+        starting.update((id(mine[i]), tuple(mine[i:i + size])) for i in range(0, len(mine), size))
+    return [starting[id(j)] for j in jobs if id(j) in starting]
 
 
 def _label_of_source(labels: np.ndarray, mapped: np.ndarray, n_sources: int, n_labels: int) -> np.ndarray:
@@ -296,7 +431,8 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
     aside: those are retried).  `executor="local"` plays the jobs in this process (workers=1) or on a
     local process pool; `executor="ray"` submits them as Ray tasks (see `_run_ray`) to a Ray instance
     started here with `workers` CPUs, or to the cluster at `address` ("auto" = the one this machine
-    belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.
+    belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.  Locally, a
+    BatchPolicy's jobs are played in batches (`make_tasks`: one task per batch); Ray plays every job alone.
     """
     if not isinstance(workers, int) or workers < 1:
         raise DeintError(f"workers={workers!r} is invalid: an integer >= 1")
@@ -327,10 +463,11 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
             if executor == "ray" and todo:
                 _run_ray(todo, workers, keep, address)
             elif workers == 1 or len(todo) <= 1:
-                for job in todo:
-                    keep(run_job(job))
+                for task in make_tasks(todo):
+                    for rec in run_task(task):
+                        keep(rec)
             else:
-                _run_pool(todo, workers, keep)
+                _run_pool(make_tasks(todo, workers), workers, keep)
         except KeyboardInterrupt:
             bar.close()
             saved = ""
@@ -364,45 +501,49 @@ def _pool(workers: int) -> Iterator[ProcessPoolExecutor]:
     pool.shutdown()
 
 
-def _next_job(queue: deque[Job], running: Iterable[Job], played: set[str]) -> Job | None:
-    """Take from `queue` the first job that may start now: one whose policy has finished a job in this
+def _next_task(queue: deque[Task], running: Iterable[Task], played: set[str]) -> Task | None:
+    """Take from `queue` the first task that may start now: one whose policy has finished a task in this
     pool (`played`: its kernels are compiled and cached) or has none in flight.  While a worker compiles a
     policy's numba kernels (seconds to a minute in a fresh clone), another worker that started the same
-    policy would compile them too; it plays other policies' jobs instead.  None: every queued job waits."""
-    busy = {j.policy for j in running} - played
-    for i, job in enumerate(queue):
-        if job.policy not in busy:
+    policy would compile them too; it plays other policies' tasks instead.  None: every queued task waits."""
+    busy = {t[0].policy for t in running} - played
+    for i, task in enumerate(queue):
+        if task[0].policy not in busy:
             del queue[i]
-            return job
+            return task
     return None
 
 
-def _run_pool(todo: list[Job], workers: int, keep: Callable[[EpisodeRecord], None]) -> None:
-    """Play the jobs on a process pool, at most two per worker in flight (`_next_job` chooses which).  A
-    worker that dies breaks the pool and fails every job in flight; those are then replayed one by one,
-    each in a pool of its own, so that only the job that kills its worker gets the fault."""
+def _run_pool(todo: list[Task], workers: int, keep: Callable[[EpisodeRecord], None]) -> None:
+    """Play the tasks (`make_tasks`) on a process pool, at most two per worker in flight (`_next_task`
+    chooses which).  A worker that dies breaks the pool and fails every task in flight; their jobs are
+    then replayed one by one, each in a pool of its own, so that only the job that kills its worker gets
+    the fault."""
     queue, window = deque(todo), 2 * workers
     played: set[str] = set()
     while queue:
         suspects: list[Job] = []
         with _pool(workers) as pool:
-            running: dict[Any, Job] = {}
+            running: dict[Any, Task] = {}
             while queue or running:
                 while queue and len(running) < window and not suspects:
-                    job = _next_job(queue, running.values(), played)
-                    if job is None:
+                    task = _next_task(queue, running.values(), played)
+                    if task is None:
                         break
-                    running[pool.submit(run_job, job)] = job
+                    running[pool.submit(run_task, task)] = task
                 if not running:
                     break
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for f in done:
-                    job = running.pop(f)
-                    played.add(job.policy)
+                    task = running.pop(f)
+                    played.add(task[0].policy)
                     try:
-                        keep(f.result())
+                        records = f.result()
                     except BrokenProcessPool:
-                        suspects.append(job)
+                        suspects.extend(task)
+                        continue
+                    for rec in records:
+                        keep(rec)
         for job in suspects:
             with _pool(1) as alone:
                 try:

@@ -36,7 +36,9 @@ CHECKS = {
     "baselines.fdp": "test_fdp_kernels_label_as_their_python_source",
     "baselines.fdp_start": "test_fdp_kernels_label_as_their_python_source",
     "agents.beam_kernels": "test_beam_kernels_label_as_their_python_source",
-    "agents.fast_net": "test_beam_kernels_label_as_their_python_source",
+    "agents.fast_net": "test_beam_kernels_label_as_their_python_source (the beam's), "
+                       "test_agent_kernels_label_as_their_python_source (the agent policy's)",
+    "deint_env.features_kernels": "test_agent_kernels_label_as_their_python_source",
     "baselines.blind.search": "test_walk_equals_a_python_reference",
     "baselines.blind.pri_transform": "test_pri_transforms_equal_python_references",
 }
@@ -186,14 +188,32 @@ def test_fdp_kernels_label_as_their_python_source(monkeypatch):
     assert not want - set(calls), sorted(want - set(calls))
 
 
+AGENT_KERNELS = {"agents.fast_net._dense", "agents.fast_net._track_logits"}  # the `agent` policy's network
+
+
 def test_beam_kernels_label_as_their_python_source(monkeypatch):
     """The beam decoder's feature, selection and update kernels and its compiled network (dagger-beam)."""
     mods = _modules("agents.beam_kernels", "agents.fast_net", "agents.beam")
-    want = defined(*mods)
+    want = defined(*mods) - AGENT_KERNELS
     ep = simulate(SMALL.replace(n_pulses=60), 2)
     compiled = play(make_policy("dagger-beam"), ep).labels
     calls = interpreted(monkeypatch, *mods)
     np.testing.assert_array_equal(play(make_policy("dagger-beam"), ep).labels, compiled)
+    assert not want - set(calls), sorted(want - set(calls))
+
+
+def test_agent_kernels_label_as_their_python_source(monkeypatch):
+    """The `agent` policy's compiled networks (the track network: dagger; SB3's MLP: ppo) and the token
+    features, played alone and in lock-step."""
+    from deint_env.runner import play_batch
+
+    mods = _modules("agents.fast_net", "deint_env.features_kernels")
+    want = AGENT_KERNELS | defined(mods[1])
+    eps = [simulate(SMALL.replace(n_pulses=40), 3), simulate(SMALL.replace(n_pulses=25, sources=SMALL.sources[:2]), 4)]
+    compiled = [play(make_policy("dagger"), eps[0]).labels, play(make_policy("ppo"), eps[1]).labels]
+    calls = interpreted(monkeypatch, *mods)
+    np.testing.assert_array_equal(play(make_policy("dagger"), eps[0]).labels, compiled[0])
+    np.testing.assert_array_equal(play_batch(make_policy("ppo"), eps[1:])[0].labels, compiled[1])
     assert not want - set(calls), sorted(want - set(calls))
 
 

@@ -134,20 +134,20 @@ def test_a_policy_warms_up_untimed_once_per_process_and_scenario(monkeypatch):
 
 
 def test_a_second_worker_does_not_start_a_policy_still_compiling():
-    """`_next_job`: while a policy's first job runs (its kernels compiling), other policies' jobs go
-    first; once it has finished a job, its jobs run on every worker; queue order is kept otherwise."""
+    """`_next_task`: while a policy's first task runs (its kernels compiling), other policies' tasks go
+    first; once it has finished a task, its tasks run on every worker; queue order is kept otherwise."""
     from collections import deque
 
-    jobs = [runner.Job(p, {}, s, "test", None, None, (), {}, 0) for s in (1, 2) for p in ("mht", "fdp")]
-    queue = deque(jobs)
-    first = runner._next_job(queue, [], set())
-    assert (first.policy, first.seed) == ("mht", 1)
-    second = runner._next_job(queue, [first], set())
-    assert (second.policy, second.seed) == ("fdp", 1)
-    assert runner._next_job(queue, [first, second], set()) is None  # both still on their first job
-    third = runner._next_job(queue, [first, second], {"mht"})
-    assert (third.policy, third.seed) == ("mht", 2)
-    assert runner._next_job(queue, [third], {"mht"}).policy == "fdp" and not queue
+    tasks = [(runner.Job(p, {}, s, "test", None, None, (), {}, 0),) for s in (1, 2) for p in ("mht", "fdp")]
+    queue = deque(tasks)
+    first = runner._next_task(queue, [], set())
+    assert (first[0].policy, first[0].seed) == ("mht", 1)
+    second = runner._next_task(queue, [first], set())
+    assert (second[0].policy, second[0].seed) == ("fdp", 1)
+    assert runner._next_task(queue, [first, second], set()) is None  # both still on their first task
+    third = runner._next_task(queue, [first, second], {"mht"})
+    assert (third[0].policy, third[0].seed) == ("mht", 2)
+    assert runner._next_task(queue, [third], {"mht"})[0].policy == "fdp" and not queue
 
 
 def test_a_rerun_retries_faults(tmp_path, monkeypatch, capsys):

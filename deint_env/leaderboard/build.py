@@ -241,6 +241,8 @@ def add_looks_and_timings(board: dict[str, Any], looks: list[history.Look], timi
         r["test_looks"] = history.test_looks(looks, r)
         t = (timings or {}).get("policies", {}).get(r["policy"]) or {}
         r["us_per_pulse"], r["vs_fdp"] = t.get("us_per_pulse"), t.get("vs_fdp")
+        if t.get("batch", 1) > 1:  # timed playing that many episodes in lock-step (timing.py): the page says so
+            r["timing_batch"] = t["batch"]
 
 
 def results_text(records: list[EpisodeRecord]) -> str:

@@ -151,6 +151,11 @@ def board_notes(b: dict[str, Any]) -> list[str]:
         out.append(f"**Speed** (us/pulse, x fdp) comes from one timing run on {t['date']} ({m['processor']}, "
                    f"{m['cpus']} CPUs, Python {m['python']}): {t['method']}; fdp took "
                    f"{num(t['reference']['us_per_pulse'], '.1f')} us/pulse on {t['reference']['suite']}'s episodes.")
+        batched = [f"{display_name(r)} ({r['timing_batch']})" for r in b["rows"] if r.get("timing_batch")]
+        if batched:
+            out.append("**Batched K episodes:** timed playing K episodes in lock-step, one network call per step for "
+                       "all K (as the runner plays them), each at the batch's time per pulse: " + ", ".join(batched)
+                       + ".")
     idle = [display_name(r) for r in b["rows"] if not _plays(r)]
     if idle:
         out.append("**Not applicable** to any scenario of this suite (not shown): " + ", ".join(idle) + ".")

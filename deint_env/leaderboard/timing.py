@@ -5,9 +5,13 @@ not comparable.  So a board's µs/pulse come from one separate run, `deint leade
 process, one policy after another, each warmed up on one untimed episode (numba compiles, caches
 fill), then timed on the first test seed of every scenario of the scope (the policy's own time: reset
 and every act, as `runner.play` measures it; scenarios longer than `MAX_PULSES` are timed on that many
-pulses).  The row shows the median µs/pulse over those episodes
-and its ratio to `fdp`'s median on the same reference episodes (core-v0's, so blind boards have one
-too), measured in that run.  `timings.json` records the machine and date beside the numbers.
+pulses).  A policy that plays episodes in lock-step (`deint_env.policies.BatchPolicy`, as the runner
+plays it: `runner.batch_size`) is timed so too, on its episodes in near-equal batches of at most
+`runner.BATCH`, each episode's time being its batch's time per pulse; its row records the batch size
+(`batch`, 1 for one episode at a time) and the board says so; its warm-up is one untimed lock-step
+play of all the episodes.  The row shows the median µs/pulse over those episodes and its ratio to
+`fdp`'s median on the same reference episodes (core-v0's, so blind boards have one too), measured in
+that run.  `timings.json` records the machine and date beside the numbers.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ class Timing(NamedTuple):
     policy: str
     us_per_pulse: float | None  # median over the timed episodes (None: it plays none of them)
     episodes: int
+    batch: int = 1  # episodes played in lock-step (a BatchPolicy's batch), 1: one at a time
 
 
 MAX_PULSES = 20_000  # a timed episode's length at most: scale-v0's 10^6-pulse episodes take minutes to hours
@@ -48,10 +53,13 @@ def _episodes(suite: str, scenarios: tuple[str, ...] | None = None) -> list[Any]
 
 
 def time_policy(spec: str, episodes: list[Any]) -> Timing:
-    """Median µs/pulse of `spec` over `episodes`, after one untimed episode it can play."""
+    """Median µs/pulse of `spec` over `episodes`, after one untimed episode it can play; a BatchPolicy's
+    episodes in lock-step (module doc)."""
     from deint_env.policies import is_oracle, make_policy
-    from deint_env.runner import play
+    from deint_env.runner import batch_size, play
 
+    if batch_size(spec) > 1:
+        return _time_batched(spec, episodes)
     oracle, warm, us = is_oracle(spec), False, []
     for episode in episodes:
         try:
@@ -63,6 +71,23 @@ def time_policy(spec: str, episodes: list[Any]) -> Timing:
             continue
         us.append(1e6 * res.seconds / max(len(episode), 1))
     return Timing(spec, statistics.median(us) if us else None, len(us))
+
+
+def _time_batched(spec: str, episodes: list[Any]) -> Timing:
+    """A BatchPolicy's timing: its warm-up is one untimed lock-step play of all `episodes`, which also tells
+    those it plays; those are then timed in near-equal batches of at most BATCH."""
+    from deint_env.policies import make_policy
+    from deint_env.runner import BATCH, play_batch
+
+    warm = play_batch(make_policy(spec), episodes, scored=False)
+    mine = [e for e, r in zip(episodes, warm) if not isinstance(r, NotApplicable)]
+    if not mine:
+        return Timing(spec, None, 0)
+    size = -(-len(mine) // -(-len(mine) // BATCH))
+    batches = [mine[i:i + size] for i in range(0, len(mine), size)]
+    us = [1e6 * r.seconds / max(len(e), 1)
+          for b in batches for r, e in zip(play_batch(make_policy(spec), b, scored=False), b)]
+    return Timing(spec, statistics.median(us), len(us), max(len(b) for b in batches))
 
 
 def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ...] | None = None,
@@ -78,7 +103,7 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
     rows = {}
     for spec in specs:
         t = time_policy(spec, episodes)
-        rows[spec] = {"us_per_pulse": t.us_per_pulse, "episodes": t.episodes,
+        rows[spec] = {"us_per_pulse": t.us_per_pulse, "episodes": t.episodes, "batch": t.batch,
                       "vs_fdp": None if t.us_per_pulse is None else t.us_per_pulse / reference.us_per_pulse}
         bar.update(1)
     bar.close()
@@ -88,7 +113,8 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
                        "python": platform.python_version(), "numpy": np.__version__,
                        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None},
            "method": f"median over the first test seed of each scenario (at most {MAX_PULSES} pulses), after one "
-                     "untimed episode; one process",
+                     "untimed episode; one process; a policy that plays episodes in lock-step (the runner batches "
+                     "it) timed so, each episode at its batch's time per pulse",
            "reference": {"policy": REFERENCE, "suite": REFERENCE_SUITE, "us_per_pulse": reference.us_per_pulse},
            "policies": rows}
     write_all([(folder / TIMINGS, json.dumps(out, indent=1, sort_keys=True) + "\n")])

@@ -58,7 +58,8 @@ def import_sb3(model_path: str | os.PathLike, out: str | os.PathLike, *, trust: 
     if not trust:
         raise DeintError(f"{src}: {UNTRUSTED}")
     if not src.is_file():
-        raise DeintError(f"{src} does not exist")
+        raise DeintError(f"{src} does not exist" if not src.exists() else
+                         f"{src} is not a regular file; a model zip is read only from a regular file")
     if not zipfile.is_zipfile(src):
         raise DeintError(f"{src} is not a stable-baselines3 model zip (not a zip archive)")
     with zipfile.ZipFile(src) as z:

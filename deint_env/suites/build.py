@@ -331,31 +331,50 @@ def blind_v0() -> Suite:
 # microsecond TOAs.  Antenna scans are compressed to 10-100 ms (real search radars: seconds) so that an
 # episode of 10^4 pulses holds whole scans, bursts and gaps alike.
 PDW_PRI = Range(50.0, 5000.0, log=True)  # us
-PDW_FREQUENCY = Range(8000.0, 12000.0)  # MHz
-PDW_PULSE_WIDTH = Range(0.5, 50.0, log=True)  # us
+# Emitters share a few parameter modes (bands, pulse-width classes) rather than spreading uniformly, so
+# several emitters of a scene overlap in frequency and pulse width as the TSRD's do.
+PDW_BANDS = (8600.0, 9100.0, 9400.0, 9900.0)  # MHz: band centres, each emitter +-40 MHz about one
+PDW_PULSE_WIDTHS = (Range(0.8, 1.2), Range(4.0, 6.0), Range(15.0, 25.0))  # us: short, medium, long
 PDW_ERP = Range(0.5, 50.0, log=True)  # received amplitude on the main beam (ERP less range loss)
 PDW_SCAN = Range(1e4, 1e5, log=True)  # us
 PDW_AOA_DRIFT = Range(-1e-5, 1e-5)  # degrees per us: up to 10 degrees a second
+_PDW_NOISE = dict(threshold=0.05, frequency_noise_std=5.0, pulse_width_noise_std=0.2)
 PDW_RECEIVERS = {
-    "staring": ReceiverSpec(threshold=0.05, frequency_noise_std=1.0, pulse_width_noise_std=0.05, aoa_noise_std=2.0),
-    "scanning": ReceiverSpec(mode="scanning", scan_period=2e4, beamwidth=30.0, sidelobe_db=-20.0, threshold=0.05,
-                             frequency_noise_std=1.0, pulse_width_noise_std=0.05, aoa_noise_std=2.0),
+    "staring": ReceiverSpec(aoa_noise_std=3.0, **_PDW_NOISE),
+    # a 30-degree beam turning every 20 ms: an emitter is in its main beam for ~1.7 ms a turn (a burst),
+    # heard between only when strong enough for the -30 dB sidelobes; its directional antenna measures
+    # the AoA better than the staring receiver's
+    "scanning": ReceiverSpec(mode="scanning", scan_period=2e4, beamwidth=30.0, sidelobe_db=-30.0, aoa_noise_std=1.0,
+                             **_PDW_NOISE),
 }
 PDW_PRIORS = PriorSpec(kind="perturbed", period_error=0.01, phase_error=0.05, descriptors=True)  # an emitter library
+# PRI agility, cycling over the emitters: constant, jittered (+-10 %, i.i.d. levels), 3-position
+# stagger, wobulated (+-20 %), dwell-and-switch, sliding (+-15 % over 32 pulses)
+PDW_MODULATIONS = (
+    Modulation(),
+    Modulation("random_stagger", pattern=(0.9, 0.95, 1.0, 1.05, 1.1)),
+    Modulation("stagger", pattern=(1.0, 1.3, 1.7), random_start=True),
+    Modulation("sinusoidal", depth=0.2, cycle=1 / 0.015),
+    Modulation("dwell_switch", pattern=(1.0, 1.4, 0.8), dwells=(20, 35, 10), random_start=True),
+    Modulation("sliding", depth=0.3, cycle=32, random_start=True),
+)
 
 
 def pdw_emitter(i: int) -> SourceSpec:
-    """Emitter i of a pdw-v0 scene: a mix cycling through the kinds of emitters a receiver meets."""
+    """Emitter i of a pdw-v0 scene: a mix cycling through the kinds of emitters a receiver meets, its
+    band and pulse-width class shared with others (band (3i // 2) mod 4, class i mod 3)."""
     kind = i % 4
-    common = dict(frequency=PDW_FREQUENCY, pulse_width=PDW_PULSE_WIDTH, aoa_rate=PDW_AOA_DRIFT,
-                  beamwidth=(2.0, 3.0, 5.0)[i % 3], beam=("gaussian", "sinc2")[i % 2], sidelobe_db=-25.0)
-    d = (DescriptorSpec(frequency_std=1.0, scan="circular", scan_period=PDW_SCAN, **common),  # search radar
-         DescriptorSpec(frequency_hops=(0.0, 40.0, 80.0, 120.0, 160.0), pulse_width_levels=(1.0, 2.0, 4.0),
+    band = PDW_BANDS[(3 * i // 2) % len(PDW_BANDS)]
+    common = dict(frequency=Range(band - 40.0, band + 40.0), pulse_width=PDW_PULSE_WIDTHS[i % 3],
+                  aoa_rate=PDW_AOA_DRIFT, beamwidth=(2.0, 3.0, 5.0)[i % 3], beam=("gaussian", "sinc2")[i % 2],
+                  sidelobe_db=-25.0)
+    d = (DescriptorSpec(frequency_std=2.0, scan="circular", scan_period=PDW_SCAN, **common),  # search radar
+         DescriptorSpec(frequency_hops=(0.0, 150.0, 300.0, 450.0, 600.0), pulse_width_levels=(1.0, 2.0, 4.0),
                         scan="circular", scan_period=PDW_SCAN, **common),  # frequency- and PW-agile
-         DescriptorSpec(frequency_std=5.0, scan="sector", scan_period=PDW_SCAN, sector=90.0, **common),
-         DescriptorSpec(frequency_std=1.0, **common))[kind]  # the last: a tracker, its beam on the receiver
-    mod = Modulation("stagger", pattern=(1.0, 1.3, 1.7)) if i % 5 == 4 else Modulation()
-    return SourceSpec(period=PDW_PRI, modulation=mod, amplitude=PDW_ERP, descriptors=d)
+         DescriptorSpec(frequency_std=20.0, scan="sector", scan_period=PDW_SCAN, sector=90.0, **common),
+         DescriptorSpec(frequency_std=2.0, **common))[kind]  # the last: a tracker, its beam on the receiver
+    return SourceSpec(period=PDW_PRI, modulation=PDW_MODULATIONS[i % len(PDW_MODULATIONS)], amplitude=PDW_ERP,
+                      descriptors=d)
 
 
 def pdw_v0() -> Suite:
@@ -367,19 +386,21 @@ def pdw_v0() -> Suite:
             name = f"pdw-{rx}-n{n}" + ("-blind" if blind else "") + ("-100k" if n_pulses > 10_000 else "")
             e.append(entry(ScenarioSpec(
                 name=name, sources=tuple(pdw_emitter(i) for i in range(n)), n_pulses=n_pulses, toa_jitter_std=0.05,
-                spurious_rate=0.01, amplitudes=True, amplitude_noise_std=0.01, receiver=receiver,
+                spurious_rate=0.02, amplitudes=True, amplitude_noise_std=0.01, receiver=receiver,
                 blind=blind, label_budget=budget if blind else 0,
                 priors=PriorSpec(kind="none") if blind else PDW_PRIORS,
-                description=f"{n} emitters (PRI 50 us-5 ms, 8-12 GHz, PW 0.5-50 us, any AoA; circular, sector and "
-                            f"no scans), {rx} receiver, threshold 0.05, {n_pulses} pulses; "
+                description=f"{n} emitters (PRI 50 us-5 ms, mostly agile: jittered, staggered, wobulated, "
+                            "dwell-and-switch, sliding; four shared 80 MHz bands in 8.6-9.9 GHz, three PW classes, "
+                            f"any AoA; circular, sector and no scans), {rx} receiver, threshold 0.05, "
+                            f"{n_pulses} pulses; "
                             + (f"blind, {budget} labels" if blind else "priors: periods 1 % off, phases 5 %, "
                                "the emitter library's descriptor means and spreads")),
                 ["pdw", "agile", "missing", "spurious"] + (["blind"] if blind else []),
                 {"receiver": rx, "n_sources": n, "n_pulses": n_pulses, "blind": blind},
                 n_test=2 if n_pulses > 10_000 else 10))
     return Suite("pdw-v0", 0, "Pulse descriptor words (frequency, pulse width, AoA, scan-shaped amplitude) as in the "
-                 "Turing Synthetic Radar Dataset: 5-90 emitters overlapping in every descriptor, staring and scanning "
-                 "receivers, anchored and blind.", tuple(e))
+                 "Turing Synthetic Radar Dataset: 5-90 emitters with agile PRIs sharing a few frequency bands and "
+                 "pulse-width classes, staring and scanning receivers, anchored and blind.", tuple(e))
 
 
 BUILDERS = {"paper-v0": paper_v0, "paper-v1": paper_v1, "core-v0": core_v0, "robust-v0": robust_v0, "agile-v0": agile_v0,

@@ -193,7 +193,10 @@ def test_a_killed_worker_is_that_episodes_fault(tmp_path, monkeypatch):
 # interrupts and killed parents (real processes and signals)
 # ---------------------------------------------------------------------------------------------------
 SLOW = """
-import sys, time
+import signal, sys, time
+# A test run started in the background (`cmd &` in a non-interactive shell) inherits SIGINT ignored,
+# and Python then leaves it ignored: restore Ctrl-C's default so the signal this test sends is seen.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from deint_env import policies
 from deint_env.cli import main
 import baselines.floors as floors

@@ -124,6 +124,22 @@ class NumpyTrackNet:
         return logp, -np.logaddexp(0.0, -v)
 
 
+@njit(cache=True, inline="always")
+def _layer_norm_row(x, h, a, ln_w, ln_b):
+    """h[a] = LayerNorm(x[a]) in float32, summed in index order (torch.nn.LayerNorm: biased variance)."""
+    d = x.shape[1]
+    mu = np.float32(0.0)
+    for c in range(d):
+        mu += x[a, c]
+    mu /= d
+    var = np.float32(0.0)
+    for c in range(d):
+        var += (x[a, c] - mu) ** 2
+    inv = np.float32(1.0) / np.sqrt(var / d + np.float32(LAYER_NORM_EPS))
+    for c in range(d):
+        h[a, c] = (x[a, c] - mu) * inv * ln_w[c] + ln_b[c]
+
+
 @njit(cache=True)
 def _beam_scores(tracks, pulse, e0t, e0p, b0, e2, b2, attention, heads, w_in, b_in, w_out, b_out, ln_w, ln_b,
                  s0, sb0, s2, p0, pb0, sp, consts, v):
@@ -175,17 +191,9 @@ def _beam_scores(tracks, pulse, e0t, e0p, b0, e2, b2, attention, heads, w_in, b_
                             att[qi, o + c] += wj * qkv[vj, 2 * d + o + c]
         x = h + np.dot(att, w_out)
         for a in range(rows):
-            mu = np.float32(0.0)
             for c in range(d):
                 x[a, c] += b_out[c]
-                mu += x[a, c]
-            mu /= d
-            var = np.float32(0.0)
-            for c in range(d):
-                var += (x[a, c] - mu) ** 2
-            inv = np.float32(1.0) / np.sqrt(var / d + np.float32(LAYER_NORM_EPS))
-            for c in range(d):
-                h[a, c] = (x[a, c] - mu) * inv * ln_w[c] + ln_b[c]
+            _layer_norm_row(x, h, a, ln_w, ln_b)
     sc = np.dot(h, s0)
     for a in range(rows):
         for c in range(d):
@@ -336,17 +344,9 @@ def _track_logits(tracks, pulse, n, e0t, e0p, b0, e2, b2, attention, heads, w_in
                             ai[c] += wj * vj[c]
         x = _dense(att, w_out, b_out, 0)
         for a in range(start[k]):
-            mu = np.float32(0.0)
             for c in range(d):
                 x[a, c] += h[a, c]
-                mu += x[a, c]
-            mu /= d
-            var = np.float32(0.0)
-            for c in range(d):
-                var += (x[a, c] - mu) ** 2
-            inv = np.float32(1.0) / np.sqrt(var / d + np.float32(LAYER_NORM_EPS))
-            for c in range(d):
-                h[a, c] = (x[a, c] - mu) * inv * ln_w[c] + ln_b[c]
+            _layer_norm_row(x, h, a, ln_w, ln_b)
     track_logit = _dense(_dense(h, s0, sb0, 1), s2, consts[:1], 0)
     pooled_in = np.empty((k, 2 * d + pulse.shape[1]), np.float32)
     out = np.full((k, m + 1), MASKED)

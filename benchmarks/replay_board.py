@@ -45,7 +45,7 @@ def same(a: object, b: object, tol: float = 0.0) -> bool:
 
 def differences(old: EpisodeRecord, new: EpisodeRecord, tol: float = 0.0) -> list[str]:
     out = [f"{k}: {old.metrics.get(k)!r} -> {new.metrics.get(k)!r}"
-           for k in sorted(set(old.metrics) | set(new.metrics) - TIMING) if k not in TIMING
+           for k in sorted(set(old.metrics) | set(new.metrics)) if k not in TIMING
            and not same(old.metrics.get(k), new.metrics.get(k), tol)]
     for name in ("applicable", "fault", "lag", "n_sources"):
         if getattr(old, name) != getattr(new, name):

@@ -32,7 +32,6 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import numpy as np
 
 from deint_env import formats, tdc_scores
 from deint_env.formats import tdc
@@ -41,7 +40,7 @@ from deint_env.cli_boards import _add_leaderboard, _add_tune
 from deint_env.cli_import import _add_import_sb3
 from deint_env.cli_plot import _add_plot
 from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_paths, _Parser, _policy_inputs, _run_policies,
-                                _status)
+                                _status, read_label_file)
 from deint_env.results import json_ready  # not from runner, which imports every part of a run
 
 # ---------------------------------------------------------------------------------------------------
@@ -294,15 +293,6 @@ def _add_score(sub) -> None:
     p.set_defaults(func=cmd_score)
 
 
-def _read_label_file(args: argparse.Namespace, toa: np.ndarray) -> np.ndarray:
-    """File labels (-1 = spurious) of a label CSV, or of a TDC file's labels (negative ids -> -1)."""
-    if not tdc.is_tdc_path(args.labels):
-        return formats.read_labels(args.labels, toa, args.n_labels, pulses=args.truth)
-    labels = np.maximum(tdc.read_label_ids(args.labels, toa, args.truth), -1)
-    if args.n_labels is not None and labels.max() >= args.n_labels:
-        raise DeintError(f"{args.labels}: label {int(labels.max())} is outside --n-labels={args.n_labels} "
-                         f"(labels 0..{args.n_labels - 1}, -1 = spurious)")
-    return labels
 
 
 def _score_tdc(args: argparse.Namespace) -> dict[str, Any]:
@@ -312,7 +302,8 @@ def _score_tdc(args: argparse.Namespace) -> dict[str, Any]:
         raise DeintError(f"{args.truth}: has no 'labels' dataset; score needs the true emitter ids")
     if args.n_labels is not None and not 1 <= args.n_labels <= formats.MAX_LABEL + 1:
         raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {formats.MAX_LABEL + 1}]")
-    return tdc_scores.score_labels(_read_label_file(args, truth.toa), truth.labels, args.n_labels)
+    labels = read_label_file(args.labels, truth.toa, args.truth, args.n_labels)
+    return tdc_scores.score_labels(labels, truth.labels, args.n_labels)
 
 
 def cmd_score(args: argparse.Namespace) -> int:
@@ -326,7 +317,7 @@ def cmd_score(args: argparse.Namespace) -> int:
                          f"(`deint simulate` without --no-truth)")
     if args.n_labels is not None and not 1 <= args.n_labels <= formats.MAX_LABEL + 1:
         raise DeintError(f"--n-labels={args.n_labels} is invalid: an integer in [1, {formats.MAX_LABEL + 1}]")
-    labels = _read_label_file(args, truth.toa)
+    labels = read_label_file(args.labels, truth.toa, args.truth, args.n_labels)
     n_labels = args.n_labels or max(truth.n_sources, int(labels.max()) + 1, 1)
     metrics = label_metrics(formats.from_file_labels(labels, n_labels), truth.source, truth.mask, n_labels,
                             args.blind, clustering=True)

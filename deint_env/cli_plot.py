@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from deint_env import formats
-from deint_env.cli_util import _check_paths, _status
+from deint_env.cli_util import _check_paths, _status, read_label_file
 from deint_env.errors import DeintError
 from deint_env.formats import tdc
 
@@ -53,12 +53,7 @@ def _read(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray | None, np.n
     else:
         table = formats.read_pulse_table(args.pulses)
         toa, source = table.toa, table.source
-    labels = None
-    if args.labels is not None:
-        if tdc.is_tdc_path(args.labels):
-            labels = np.maximum(tdc.read_label_ids(args.labels, toa, args.pulses), -1)
-        else:
-            labels = formats.read_labels(args.labels, toa, pulses=args.pulses)
+    labels = None if args.labels is None else read_label_file(args.labels, toa, args.pulses)
     return toa, source, labels
 
 

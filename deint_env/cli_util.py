@@ -100,3 +100,20 @@ def _run_policies(args: argparse.Namespace) -> list[str]:
             seen.add(canon)
             out.append(s)
     return out
+
+
+def read_label_file(path: str, toa, pulses: str, n_labels: int | None = None):
+    """File labels (-1 = spurious) of a label CSV, or of a TDC file's labels (negative ids -> -1), for the
+    pulses `toa` of the file `pulses`; a label at or past `n_labels` (when given) is refused."""
+    import numpy as np
+
+    from deint_env import formats
+    from deint_env.formats import tdc
+
+    if not tdc.is_tdc_path(path):
+        return formats.read_labels(path, toa, n_labels, pulses=pulses)
+    labels = np.maximum(tdc.read_label_ids(path, toa, pulses), -1)
+    if n_labels is not None and labels.max() >= n_labels:
+        raise DeintError(f"{path}: label {int(labels.max())} is outside --n-labels={n_labels} "
+                         f"(labels 0..{n_labels - 1}, -1 = spurious)")
+    return labels

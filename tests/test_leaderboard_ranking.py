@@ -118,3 +118,29 @@ def test_a_board_plays_every_division_and_each_learned_entrys_ablation():
     assert {"cdif", "cdif:window=65", "seq", "seq:network=off"} <= set(board_entries("blind-v0"))
     divisions = {division_of(make_policy(s).lag) for s in specs if s.startswith("mht")}
     assert divisions == {"online", "low-latency", "offline"}
+
+
+@pytest.mark.parametrize("suite,specs,timed_first", [("core-v0", ["mht", "fdp"], False),
+                                                     ("robust-v0", ["mht", "fdp"], True),
+                                                     ("core-v0", ["mht"], True)])
+def test_the_speed_ratio_divides_by_fdps_own_row_on_its_reference_suite(tmp_path, monkeypatch, suite, specs,
+                                                                        timed_first):
+    """On core-v0's board fdp's row is the reference (one timing of one policy, not two that disagree);
+    elsewhere fdp is timed on core-v0's episodes before the rows."""
+    from deint_env.leaderboard import timing
+
+    calls = []
+
+    def fake(spec, episodes):
+        calls.append(spec)
+        us = {"mht": 30.0, "fdp": 20.0 if len(calls) > 1 else 31.7}[spec]  # the first timing runs slow
+        return timing.Timing(spec, us, 1)
+
+    monkeypatch.setattr(timing, "time_policy", fake)
+    monkeypatch.setattr(timing, "_episodes", lambda suite, scenarios=None: [])
+    out = timing.run(tmp_path, suite, specs, progress=False)
+    assert calls == (["fdp"] if timed_first else []) + specs
+    assert out["reference"]["measured"] == ("before the rows" if timed_first else "its own row")
+    assert out["policies"]["mht"]["vs_fdp"] == pytest.approx(30.0 / out["reference"]["us_per_pulse"])
+    assert out["reference"]["us_per_pulse"] == (31.7 if timed_first else 20.0)
+    assert timing.read(tmp_path) == out

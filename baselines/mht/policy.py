@@ -59,7 +59,7 @@ PARAMS = declare(
     Param("batch", int, 64, "pulses buffered per call of the compiled driver (labels do not depend on it)", low=1,
           high=_N),
     Param("dead", int, _DEAD, "arrivals a track must have missed in a row before it may restart", low=1, high=_N),
-    Param("dense", float, 12.0, "start tracks jointly when the first arrivals' gates hold this many pulses on "
+    Param("dense", float, 8.0, "start tracks jointly when the first arrivals' gates hold this many pulses on "
           "average (0: whenever the phases are known)", low=0),
     Param("look_init", int, 16, "periods of the longest source the joint start buffers (arrivals per chain it "
           "judges)", low=1, high=_N),
@@ -90,8 +90,11 @@ class MHT:
     Notes beyond those lines.  `lag`: pulses are buffered so the initiation look-ahead sees `look`
     periods of the longest source, but never longer than lag - nscan pulses.  `dense`: tracks are
     started jointly (`initiate`) when every track's phase is known to within a period and the first
-    arrivals' gates hold this many pulses on average: 32 sources of scale-v0 hold ~21, 16 sources ~8,
-    core-v0 at most ~6, where the beam's own start is as good.  `margin`: an adaptive beam, cheaper
+    arrivals' gates hold this many pulses on average: 32 sources of scale-v0 hold ~21, 16 sources 8-9,
+    16 sources of periods spread over [12, 160] (tests/independent_gen.py) 10-13, core-v0 at most ~6,
+    where the beam's own start is as good (joint starts there: -0.005 +- 0.006 on core-v0's validation
+    seeds).  Below 12 the beam's start let slow tracks take a faster source's harmonic in the crowded
+    first gates (tests/test_mht_dense.py), hence 8.  `margin`: an adaptive beam, cheaper
     where one hypothesis leads clearly; `margin_per_source`: a hypothesis's score sums over its tracks,
     so more sources spread the children's scores wider; `per_source` is rounded up: few sources leave
     fewer ambiguities to carry.  `drift` (`drift_terms`): 0 is MK94's DLM; it lets tracks of near-equal
@@ -109,7 +112,7 @@ class MHT:
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = _LOOK,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = _DEAD, dense: float = 12.0, look_init: int = 16, margin: float = math.inf,
+                 dead: int = _DEAD, dense: float = 8.0, look_init: int = 16, margin: float = math.inf,
                  margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
                  jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, wide_from: int = 0,

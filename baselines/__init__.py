@@ -27,10 +27,11 @@ POLICIES = (
     PolicyInfo("tree", "baselines.tree:TreeSearch", modes=ANCHORED, limits=Limits(max_pulses=20),
                description="MK94 II-G: the optimal full tree search (2.19), short trains only"),
     # fdp/fdp-ll version 2: the published (3.2) accumulation is the default (version 1 was "sequence").
+    # fdp-ll version 3: its cost counts S as at most 9 R (dense scenes lost every track at the start).
     PolicyInfo("fdp", "baselines.fdp:FDP", modes=ANCHORED, version=2,
                description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
                            "supernumerary, dropout options of VI)"),
-    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=2,
+    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=3,
                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
     PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
                limits=TRACKS,
@@ -43,7 +44,10 @@ POLICIES = (
     # dokf version 3 (issue #22): the start beam for every start (known phases too), missed arrivals scored
     # whenever coasting (a stated missing_prob of 0 turned them off), Theorem 1's lambda floored after the
     # start (a stated spurious_rate of 0 turned the test off); labels change on every suite (pt-post's on none)
-    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=3,
+    # version 4 (issue #22, dense 16-source scenes): the start beam keeps only labellings that predict differently
+    # (its 32 places were filled by variants of one wrong start), and the decision leaves out the rate prior pi
+    # (labels change on every suite; pt-post's on none)
+    PolicyInfo("dokf", "baselines.pt:DOKFTracker", modes=ANCHORED, version=4,
                limits=TRACKS,
                description="DM89 detect-then-filter on the DLM: MAP source or spurious (Theorem 1), then its KF "
                            "update; coasts through missed arrivals"),

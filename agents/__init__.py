@@ -35,6 +35,12 @@ POLICIES = (
     PolicyInfo("seq", "agents.sequence:SequencePolicy", kind="learned", ablation="network=off", modes=("blind",), extra="rl",
                description="supervised pointer sequence labeller (Transformer over the pulse window, look-ahead = lag 32; "
                            "agents/checkpoints/seq-blind-v0.safetensors, trained on blind-v0's train seeds): blind only"),
+    PolicyInfo("pdw-metric", "agents.pdw_metric:PDWMetricPolicy", kind="learned", ablation="network=off", modes=("blind",),
+               extra="rl",
+               description="blind, PDWs: a transformer trained by deep metric learning (supervised contrastive) on "
+                           "pdw-v0's train seeds embeds each pulse of a 2048-pulse window; HDBSCAN clusters the "
+                           "embeddings, emitters carried across windows as the pdw-* policies do (agents/checkpoints/"
+                           "pdw-metric-v0.safetensors; lag = window - 1; network=off: the scaled features clustered)"),
     PolicyInfo("ppo", "agents.policy:ppo", kind="learned", ablation="network=off", modes=("anchored",), extra="rl",
                description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario"),
 )

@@ -241,14 +241,16 @@ _ROW0 = np.zeros(1, np.int64)
 
 def agent(checkpoint: str, deterministic: bool = True, network: str = "on") -> Any:
     """`agent:checkpoint=PATH`: the agent of any deint checkpoint, rebuilt as its architecture says
-    (the sequence labeller's by `agents.sequence.SequencePolicy`, an mht scorer's by `agents.lmht.LMHT`;
-    both always deterministic)."""
-    from agents import lmht
+    (the sequence labeller's by `agents.sequence.SequencePolicy`, an mht scorer's by `agents.lmht.LMHT`,
+    the PDW metric labeller's by `agents.pdw_metric.PDWMetricPolicy`; all always deterministic)."""
+    from agents import lmht, pdw_metric
     from agents.sequence import ARCHITECTURE, SequencePolicy
 
     name = load_checkpoint(checkpoint).meta.architecture.get("name")
     if name == ARCHITECTURE:
         return SequencePolicy(checkpoint, network=network)
+    if name == pdw_metric.ARCHITECTURE:
+        return pdw_metric.PDWMetricPolicy(checkpoint, network=network)
     if name == lmht.ARCHITECTURE:
         return lmht.LMHT(checkpoint, network=network)
     return AgentPolicy(checkpoint, deterministic, network)

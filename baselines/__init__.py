@@ -27,11 +27,10 @@ POLICIES = (
     PolicyInfo("tree", "baselines.tree:TreeSearch", modes=ANCHORED, limits=Limits(max_pulses=20),
                description="MK94 II-G: the optimal full tree search (2.19), short trains only"),
     # fdp/fdp-ll version 2: the published (3.2) accumulation is the default (version 1 was "sequence").
-    # fdp-ll version 3: its cost counts S as at most 9 R (dense scenes lost every track at the start).
     PolicyInfo("fdp", "baselines.fdp:FDP", modes=ANCHORED, version=2,
                description="MK94 III: forward dynamic programming with look-ahead (lookahead=3; missing, "
                            "supernumerary, dropout options of VI)"),
-    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=3,
+    PolicyInfo("fdp-ll", "baselines.fdp:FDPLikelihood", modes=ANCHORED, version=2,
                description="fdp with likelihood-normalised costs e^2/S + log S (an improvement, not published)"),
     PolicyInfo("pt-prior", "baselines.pt:PTPrior", modes=ANCHORED,
                limits=TRACKS,

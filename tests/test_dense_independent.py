@@ -59,10 +59,10 @@ def test_acceptance_on_cells_of_the_matrix(tmp_path, n, jitter, rates):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue #22's acceptance is not met everywhere yet (rates unknown or 0): mht "
-                   "is below fdp - 0.01 on 8 sources at jitter 0.06 and 16 at 0.03 and 0.06; pt-post (MK94's "
-                   "sampling teacher) is below 0.5 on the 8- and 16-source cells where fdp is above 0.8, fdp-ll on "
-                   "16 sources at 0.01, dokf on 16 sources at 0.01 with the rates stated 0")
+@pytest.mark.xfail(strict=True, reason="issue #22's acceptance is not met everywhere yet: mht (v7) is below fdp - 0.01 "
+                   "on 8 sources at jitter 0.06 and on 16 at 0.03 with the rates unknown; pt-post (MK94's sampling "
+                   "teacher) is below 0.5 on the 8- and 16-source cells where fdp is above 0.8, and fdp-ll on 16 "
+                   "sources at 0.01 (tests/test_fdp_ll_dense.py says why)")
 def test_acceptance_on_the_whole_matrix(tmp_path):
     """Every cell of the matrix, 2000 pulses (benchmarks/bench_dense.py prints the table)."""
     failures = []

@@ -23,12 +23,11 @@ still learning from the sample (a variant, not published: `pt-post:label=map`).
 `dokf` (teacher "decision"): DM89's detect-then-filter carried over to the DLM: each pulse is
 assigned to the argmax of (4.1), or called spurious by Theorem 1 (below), and that decision, not a
 sample, drives the update, as DM89's q_hat(k|k) drives (16)-(17) (Agrawala's decision-directed
-learning, against which ref. [6] sets the PT).  Its (4.1) leaves out pi: every source has exactly one
-next arrival, whose density N[y; H x^j_{k+1|k}, Omega^j] already says when it comes, so the rate prior
-counts a fast source's rate a second time and hands it a slower source's pulse arriving near its own,
-or a slow source's first pulse (independent generator, 8 sources at jitter 0.06 of the shortest
-period, rates unknown: 0.63 of the labels right with pi, 0.71 without, validation seeds 101-105;
-core-v0's validation score 0.904 with pi, 0.912 without).
+learning, against which ref. [6] sets the PT).  Its (4.1) keeps pi: leaving it out (each source's
+arrival density already says when it is due) helped dense scenes of sources with rates proportional to
+1/period a little (independent generator, 8 sources at jitter 0.06 of the shortest period: 0.694
+without pi, 0.678 with it, validation files 101-103) and cost MK94's and CM00's scenes of unequal
+rates and unknown phases much more (paper-v0's validation seeds: 0.461 without, 0.579 with).
 
 Missed pulses (MK94 VI-C-3).  The DLM has no missing-pulse state, so a true pulse lost, rejected or
 taken by the wrong source desynchronises its track: it goes on predicting the lost pulse and every
@@ -184,9 +183,7 @@ class ProbabilisticTeacher:
         self.missed = np.zeros(self.n, dtype=np.int64)  # arrivals coasted through since the last update
         self._sources, self._ones, self._zeros = np.arange(self.n), np.ones(self.n), np.zeros(self.n)
         pi = np.asarray(priors.source_prob, dtype=np.float64)
-        # dokf scores a pulse by its sources' arrival densities alone (see the module doc: pi counts a fast
-        # source's rate twice); the PT draws from (4.1) as published
-        self.log_pi = np.zeros(self.n) if self.teacher == "decision" else np.log(pi)
+        self.log_pi = np.log(pi)
         self._cum_pi = np.cumsum(pi / pi.sum()).tolist()
         self._cum_pi[-1] = math.inf  # u < 1 always lands on a source
         estimate = self.rates == "estimate"

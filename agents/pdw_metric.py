@@ -55,6 +55,7 @@ import torch
 from torch import nn
 
 from agents.ablation import NETWORK, network_off
+from baselines.pdw.hdbscan import hdbscan_clusters
 from baselines.pdw.policy import Clusters, PDWPolicy, PDWs
 from baselines.windowed import MAX_WINDOW
 from deint_env.episode import Episode
@@ -167,19 +168,8 @@ def supcon_loss(z: torch.Tensor, y: torch.Tensor, tau: float) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------------------------------------------
-# clustering and the policy
+# the policy
 # ---------------------------------------------------------------------------------------------------
-def cluster_points(x: np.ndarray, min_cluster_size: int) -> np.ndarray:
-    """HDBSCAN cluster ids (-1: noise) of the rows of x."""
-    from sklearn.cluster import HDBSCAN
-
-    n = x.shape[0]
-    if n < 2:
-        return np.full(n, -1, dtype=np.int64)
-    m = min(min_cluster_size, n)
-    return HDBSCAN(min_cluster_size=m, min_samples=m, copy=True).fit_predict(x).astype(np.int64)
-
-
 class PDWMetricPolicy(PDWPolicy):
     """`pdw-metric`: the metric-learning labeller (module doc).  Labels `window` pulses at a time
     (lag window - 1); `network=off` clusters the scaled features instead of the embeddings."""
@@ -224,8 +214,7 @@ class PDWMetricPolicy(PDWPolicy):
         return x.astype(np.float64) if self.off else embed(self.net, x)
 
     def label_window(self, p: PDWs) -> Clusters:
-        ids = cluster_points(self.points(p), self.min_cluster_size)
-        return Clusters(ids, np.full(int(ids.max(initial=-1)) + 1, np.nan))
+        return hdbscan_clusters(self.points(p), self.min_cluster_size)
 
     def label_episode(self, ep: Episode) -> np.ndarray:
         """Every pulse's label, as the protocol would give them (windows of `window` pulses in order),

@@ -36,6 +36,21 @@ def pdw_matrix(p: PDWs, scale: str) -> np.ndarray:
     return standardised(cols) if scale == "robust" else np.column_stack(list(cols.values()))
 
 
+def hdbscan_clusters(x: np.ndarray, min_cluster_size: int, min_samples: int | None = None,
+                     epsilon: float = 0.0) -> Clusters:
+    """scikit-learn's HDBSCAN on the rows of x (noise: -1), its sizes held to the row count, as Clusters
+    with no PRI; fewer than 2 rows are noise."""
+    from sklearn.cluster import HDBSCAN
+
+    n = x.shape[0]
+    if n < 2:
+        return Clusters(np.full(n, -1, dtype=np.int64), np.zeros(0))
+    least = None if min_samples is None else min(min_samples, n)
+    ids = HDBSCAN(min_cluster_size=min(min_cluster_size, n), min_samples=least, cluster_selection_epsilon=epsilon,
+                  copy=True).fit_predict(x)
+    return Clusters(ids.astype(np.int64), np.full(int(ids.max()) + 1, np.nan))
+
+
 class PDWHDBSCANPolicy(PDWPolicy):
     """`pdw-hdbscan`: HDBSCAN on the PDWs of each window (noise: spurious)."""
 
@@ -59,12 +74,4 @@ class PDWHDBSCANPolicy(PDWPolicy):
         self.epsilon, self.scale = float(cluster_selection_epsilon), scale
 
     def label_window(self, p: PDWs) -> Clusters:
-        from sklearn.cluster import HDBSCAN
-
-        n = p.toa.size
-        if n < 2:
-            return Clusters(np.full(n, -1, dtype=np.int64), np.zeros(0))
-        least = None if self.min_samples is None else min(self.min_samples, n)
-        ids = HDBSCAN(min_cluster_size=min(self.min_cluster_size, n), min_samples=least,
-                      cluster_selection_epsilon=self.epsilon, copy=True).fit_predict(pdw_matrix(p, self.scale))
-        return Clusters(ids.astype(np.int64), np.full(int(ids.max()) + 1, np.nan))
+        return hdbscan_clusters(pdw_matrix(p, self.scale), self.min_cluster_size, self.min_samples, self.epsilon)

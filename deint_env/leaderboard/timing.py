@@ -101,18 +101,20 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
     episodes = _episodes(suite, scenarios)
     own_row = suite == REFERENCE_SUITE and scenarios is None and REFERENCE in specs
     bar = progress_bar(len(specs) + (not own_row), f"timing {suite}", progress)
-    timings = {}
+    reference = None
     if not own_row:
-        timings[REFERENCE, "reference"] = time_policy(REFERENCE, _episodes(REFERENCE_SUITE))
+        reference = time_policy(REFERENCE, _episodes(REFERENCE_SUITE))
         bar.update(1)
+    timings = {}
     for spec in specs:
-        timings[spec, "row"] = time_policy(spec, episodes)
+        timings[spec] = time_policy(spec, episodes)
         bar.update(1)
     bar.close()
-    reference = timings[REFERENCE, "row" if own_row else "reference"]
+    if own_row:
+        reference = timings[REFERENCE]
     rows = {spec: {"us_per_pulse": t.us_per_pulse, "episodes": t.episodes, "batch": t.batch,
                    "vs_fdp": None if t.us_per_pulse is None else t.us_per_pulse / reference.us_per_pulse}
-            for (spec, kind), t in timings.items() if kind == "row"}
+            for spec, t in timings.items()}
     out = {"format": "deint-timings", "suite": suite, "date": datetime.date.today().isoformat(),
            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),

@@ -12,7 +12,7 @@ sources); `*` marks a cell where the issue's acceptance fails (mht below
 max(fdp, dokf) - 0.01, or a tracker below 0.5 where fdp is above 0.8).
 
     nice python benchmarks/bench_dense.py [--sources 3,8,16] [--jitter 0.01,0.03,0.06] [--pulses 2000]
-        [--seeds 1] [--policies fdp,mht,...] [--extra]   (--extra adds agile-kf and renewal-ml: slow)
+        [--seeds 1] [--first-seed 1] [--policies fdp,mht,...] [--extra]   (--extra adds agile-kf and renewal-ml: slow)
 """
 
 from __future__ import annotations
@@ -46,6 +46,8 @@ def main() -> None:
     ap.add_argument("--rates", default=",".join(RATES))
     ap.add_argument("--pulses", type=int, default=2000)
     ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--first-seed", type=int, default=1,
+                    help="generator seeds first..first+seeds-1 (choices are made on 101-110; 1-3 make the table)")
     ap.add_argument("--policies", default=",".join(POLICIES))
     ap.add_argument("--extra", action="store_true", help="also agile-kf and renewal-ml (slow)")
     args = ap.parse_args()
@@ -56,7 +58,7 @@ def main() -> None:
         for n, jitter, rates in itertools.product(map(int, args.sources.split(",")),
                                                   map(float, args.jitter.split(",")), args.rates.split(",")):
             runs = [run_cell(Path(tmp), n, jitter, rates, args.pulses, seed, policies, refused_ok=True)
-                    for seed in range(1, args.seeds + 1)]
+                    for seed in range(args.first_seed, args.first_seed + args.seeds)]
             acc = {c: float(np.mean([r[c] for r in runs])) for c in cols}
             print(f"{n:>3} {jitter:>6} {rates:>7}  " + " ".join(f"{acc[c]:>11.3f}" for c in cols)
                   + ("  *" if failing(acc) else ""), flush=True)

@@ -5,11 +5,15 @@ busy machine is the CPU time stretched by the other load):
 1. `deint --help` and `python -c "import deint_env"`;
 2. `deint label` of a 1000-pulse file by every reference policy of the registry (`deint policies`):
    anchored ones on a core-v0 episode with its priors file, blind-only ones on a blind-v0 episode with
-   its blind priors file; `tree` on that core-v0 scenario cut to its limit of 20 pulses (it cannot label
-   1000).  Cold: a fresh numba cache (NUMBA_CACHE_DIR a new temporary folder: every kernel the policy
+   its blind priors file, the pdw-* ones on pdw-v0's 5-emitter staring scenario cut to 1000 pulses and
+   written as a challenge file (their descriptors); `tree` on that core-v0 scenario cut to its limit of
+   20 pulses (it cannot label 1000).  Cold: a fresh numba cache (NUMBA_CACHE_DIR a new temporary folder: every kernel the policy
    calls is compiled); warm: the median of --repeats runs on the cache the cold run filled.  The
    `notice` column says whether the run printed deint's "compiling ..." line (it should, cold, for a
    policy with numba kernels, and never warm).
+3. For scale, the floor any numba-compiled policy pays: a fresh process importing numba and calling one
+   trivial kernel from a warm cache (numba's import, its BLAS check importing scipy.linalg, and the set-up
+   of its code generator on the first cached load).
 
 Policies that need an input a pulse file cannot give (an adapter's model) are listed as skipped;
 genie is labelled from the true priors file.  Learned agents are not reference policies (their
@@ -37,6 +41,7 @@ from deint_env.suites import resolve_scenario
 
 ANCHORED_SCENARIO = "core-v0/core-n4-spread4-jitter0.2"
 BLIND_SCENARIO = "blind-v0/blind-n3to3-jitter0.1"
+PDW_SCENARIO = "pdw-v0/pdw-staring-n5-blind"  # cut to 1000 pulses, written as a challenge (HDF5) file
 TARGET = 1.0  # seconds, warm
 DEINT = shutil.which("deint", path=str(Path(sys.executable).parent)) or shutil.which("deint")
 
@@ -61,9 +66,12 @@ def simulate_files(folder: Path) -> dict[str, tuple[str, str, str]]:
     files = {}
     short = resolve_scenario(ANCHORED_SCENARIO).to_dict() | {"n_pulses": 20, "name": "startup-tree"}
     (folder / "tree-scenario.json").write_text(json.dumps(short))
+    pdw = resolve_scenario(PDW_SCENARIO).to_dict() | {"n_pulses": 1000, "name": "startup-pdw"}
+    (folder / "pdw-scenario.json").write_text(json.dumps(pdw))
     for kind, scenario in (("anchored", ANCHORED_SCENARIO), ("blind", BLIND_SCENARIO),
-                           ("tree", str(folder / "tree-scenario.json"))):
-        pulses, priors, true = (str(folder / f"{kind}{suffix}") for suffix in (".csv", ".json", "-true.json"))
+                           ("tree", str(folder / "tree-scenario.json")), ("pdw", str(folder / "pdw-scenario.json"))):
+        pulses, priors, true = (str(folder / f"{kind}{suffix}")
+                                for suffix in (".h5" if kind == "pdw" else ".csv", ".json", "-true.json"))
         subprocess.run([DEINT, "simulate", scenario, "--seed", "0", "-o", pulses, "--priors-out", priors,
                         "--true-priors-out", true], check=True, capture_output=True)
         files[kind] = (pulses, priors, true)
@@ -73,10 +81,12 @@ def simulate_files(folder: Path) -> dict[str, tuple[str, str, str]]:
 def label_command(info, files, out: str) -> tuple[list[str], str] | None:
     if info.required:
         return None
-    kind = "tree" if info.limits.max_pulses is not None else "anchored" if "anchored" in info.modes else "blind"
+    kind = ("tree" if info.limits.max_pulses is not None else "pdw" if info.name.startswith("pdw-")
+            else "anchored" if "anchored" in info.modes else "blind")
     pulses, priors, true = files[kind]
     what = {"tree": f"{ANCHORED_SCENARIO} cut to 20 pulses", "anchored": ANCHORED_SCENARIO,
-            "blind": BLIND_SCENARIO}[kind] + (" (true priors)" if info.oracle else "")
+            "blind": BLIND_SCENARIO, "pdw": f"{PDW_SCENARIO} cut to 1000 pulses (.h5)"}[kind] + \
+        (" (true priors)" if info.oracle else "")
     return [DEINT, "label", pulses, "--priors", true if info.oracle else priors, "--policy", info.name, "-o", out], what
 
 
@@ -101,6 +111,13 @@ def main() -> None:
                       ("deint --help", [DEINT, "--help"])):
         wall, cpu, _ = median_of(cmd, args.repeats)
         print(f"{what:<40} {wall:6.2f} s ({cpu:.2f} s CPU)")
+    with tempfile.TemporaryDirectory(prefix="deint-numba-floor-") as tmp:
+        (Path(tmp) / "floor_kernel.py").write_text(
+            "import numba\n\n@numba.njit(cache=True)\ndef one(x):\n    return x + 1.0\n")
+        cmd = [sys.executable, "-c", f"import sys; sys.path.insert(0, {tmp!r}); import floor_kernel; floor_kernel.one(1.0)"]
+        subprocess.run(cmd, check=True, env=dict(os.environ, NUMBA_CACHE_DIR=tmp))  # fills the cache
+        wall, cpu, _ = median_of(cmd, args.repeats, dict(os.environ, NUMBA_CACHE_DIR=tmp))
+        print(f"{'numba floor: one cached kernel':<40} {wall:6.2f} s ({cpu:.2f} s CPU)")
 
     wanted = set(args.policies.split(",")) if args.policies else None
     infos = [p for p in list_policies() if p.kind in ("reference", "oracle", "adapter")

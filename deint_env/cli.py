@@ -696,8 +696,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _defer_unused_numpy_modules() -> None:
+    """Make numpy.f2py and numpy.testing lazy modules (executed on their first attribute use).
+
+    numba's BLAS check imports scipy.linalg, and scipy 1.17's array-API shim copies every public
+    attribute of numpy, which imports those two: 0.12 s of a 1-s `deint label` (numpy.f2py compiles
+    its Fortran-parsing regexes), for modules the command never uses.  Only the command does this: a
+    library user's process keeps numpy's own import behaviour."""
+    import importlib.util
+
+    import numpy
+
+    for name in ("numpy.f2py", "numpy.testing"):
+        if name in sys.modules:
+            continue
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            continue
+        spec.loader = importlib.util.LazyLoader(spec.loader)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        setattr(numpy, name.rpartition(".")[2], module)  # as the import system does for a submodule
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `deint`; returns the exit status (the console script passes it to sys.exit)."""
+    _defer_unused_numpy_modules()
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # --help, --version and usage errors: argparse has printed them

@@ -143,6 +143,23 @@ def test_labelling_imports_only_what_the_policy_needs(tmp_path):
     assert "numba" in compiled and not {"sklearn", "torch"} & {m.split(".")[0] for m in compiled}
 
 
+def test_the_command_defers_numpy_modules_it_never_uses(tmp_path):
+    """`deint label` with a compiled policy imports scipy.linalg through numba, whose array-API shim
+    touches numpy.f2py and numpy.testing; the command leaves them unexecuted (lazy) yet usable."""
+    code = ("from deint_env.cli import main\n"
+            "assert main(['simulate', 'core-v0/core-n2-spread4-jitter0.05', '--seed', '0', '-o', 'p.csv', "
+            "'--priors-out', 'p.json']) == 0\n"
+            "assert main(['label', 'p.csv', '--priors', 'p.json', '--policy', 'fdp', '-o', 'l.csv']) == 0\n"
+            "import importlib.util, numpy\n"
+            "assert 'scipy.linalg' in sys.modules\n"
+            "lazy = {n: isinstance(sys.modules[n], importlib.util._LazyModule) for n in ('numpy.f2py', 'numpy.testing')}\n"
+            "assert lazy == {'numpy.f2py': True, 'numpy.testing': True}, lazy\n"
+            "numpy.testing.assert_equal(1, 1)  # executed on first use\n"
+            "assert callable(numpy.f2py.run_main)\n")
+    mods = loaded_after(code, tmp_path)
+    assert "numpy.f2py.crackfortran" in mods  # loaded by the use above, not before
+
+
 def _private(name: str) -> bool:
     return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))  # dunders are public
 

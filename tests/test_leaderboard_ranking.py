@@ -97,13 +97,17 @@ def test_test_looks_count_the_versions_scored_before(tmp_path):
                                 row("fdp", 0.8, version=2), row("genie", 1.0, kind="oracle")])
     assert looks == [history.Look("mht", "5"), history.Look("fdp", "2")]
     looks = history.update(looks, [row("mht", 0.91, version=6)])
-    board = {"rows": [row("mht", 0.91, version=6), row("fdp", 0.8, version=2), row("genie", 1.0, kind="oracle")]}
+    board = {"rows": [row("mht", 0.91, version=6), row("fdp", 0.8, version=2), row("genie", 1.0, kind="oracle"),
+                      row("dokf", 0.7, version=5)]}
     timings = {"date": "d", "machine": {}, "method": "m", "reference": {"us_per_pulse": 10.0},
-               "policies": {"mht": {"us_per_pulse": 25.0, "vs_fdp": 2.5}}}
+               "policies": {"mht": {"us_per_pulse": 25.0, "vs_fdp": 2.5, "version": 6},
+                            "dokf": {"us_per_pulse": 40.0, "vs_fdp": 4.0, "version": 4}}}
     add_looks_and_timings(board, looks, timings)
-    assert [r["test_looks"] for r in board["rows"]] == [1, 0, None]
+    assert [r["test_looks"] for r in board["rows"]] == [1, 0, None, 0]
     assert (board["rows"][0]["us_per_pulse"], board["rows"][0]["vs_fdp"]) == (25.0, 2.5)
     assert board["rows"][1]["us_per_pulse"] is None  # not timed in that run: no time from elsewhere
+    # timed at version 4, scored at 5: its speed is not shown, and the page says why
+    assert (board["rows"][3]["us_per_pulse"], board["timing"]["stale"]) == (None, ["dokf"])
     (tmp_path / history.HISTORY).write_text(history.text(looks))
     assert history.read(tmp_path) == looks
     (tmp_path / history.HISTORY).write_text(json.dumps({"looks": 5}))

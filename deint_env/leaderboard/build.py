@@ -235,14 +235,22 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
 
 def add_looks_and_timings(board: dict[str, Any], looks: list[history.Look], timings: dict[str, Any] | None) -> None:
     """Each row's test-look count, and its speed from the board's one timing run (none without one:
-    times from the scoring runs are never shown, they come from many runs and processes)."""
+    times from the scoring runs are never shown, they come from many runs and processes).  A timing of
+    another version of the row's policy than the one scored (or of an unrecorded one) is not shown: the
+    policy changed since the timing run, and `board["timing"]["stale"]` names it."""
     board["timing"] = None if timings is None else {k: timings[k] for k in ("date", "machine", "method", "reference")}
+    stale = []
     for r in board["rows"]:
         r["test_looks"] = history.test_looks(looks, r)
         t = (timings or {}).get("policies", {}).get(r["policy"]) or {}
+        if t and t.get("version") != r.get("policy_version"):
+            stale.append(r["policy"])
+            t = {}
         r["us_per_pulse"], r["vs_fdp"] = t.get("us_per_pulse"), t.get("vs_fdp")
         if t.get("batch", 1) > 1:  # timed playing that many episodes in lock-step (timing.py): the page says so
             r["timing_batch"] = t["batch"]
+    if board["timing"] is not None:
+        board["timing"]["stale"] = stale
 
 
 def results_text(records: list[EpisodeRecord]) -> str:

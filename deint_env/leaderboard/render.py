@@ -151,6 +151,10 @@ def board_notes(b: dict[str, Any]) -> list[str]:
         out.append(f"**Speed** (us/pulse, x fdp) comes from one timing run on {t['date']} ({m['processor']}, "
                    f"{m['cpus']} CPUs, Python {m['python']}): {t['method']}; fdp took "
                    f"{num(t['reference']['us_per_pulse'], '.1f')} us/pulse on {t['reference']['suite']}'s episodes.")
+        stale = [display_name(r) for r in b["rows"] if r["policy"] in (t.get("stale") or ())]
+        if stale:
+            out.append("**Not timed at the version scored** (changed since the timing run; no speed shown): "
+                       + ", ".join(stale) + ".")
         batched = [f"{display_name(r)} ({r['timing_batch']})" for r in b["rows"] if r.get("timing_batch")]
         if batched:
             out.append("**Batched K episodes:** timed playing K episodes in lock-step, one network call per step for "

@@ -95,6 +95,7 @@ def _time_batched(spec: str, episodes: list[Any]) -> Timing:
 def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ...] | None = None,
         progress: bool = True) -> dict[str, Any]:
     """Time every spec on the scope's episodes and fdp on the reference episodes; write timings.json."""
+    from deint_env.policies import spec_version
     from deint_env.progress import progress_bar
 
     specs = list(dict.fromkeys(specs))
@@ -113,7 +114,8 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
     if own_row:
         reference = timings[REFERENCE]
     rows = {spec: {"us_per_pulse": t.us_per_pulse, "episodes": t.episodes, "batch": t.batch,
-                   "vs_fdp": None if t.us_per_pulse is None else t.us_per_pulse / reference.us_per_pulse}
+                   "vs_fdp": None if t.us_per_pulse is None else t.us_per_pulse / reference.us_per_pulse,
+                   "version": spec_version(spec)}  # a row's speed is shown only for this version
             for spec, t in timings.items()}
     out = {"format": "deint-timings", "suite": suite, "date": datetime.date.today().isoformat(),
            "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),

@@ -96,14 +96,14 @@ def test_spurious_test_only_with_spurious_priors():
 
 def test_coasting_and_resets_keep_tracks_alive():
     """A wrongly taken spurious pulse biases a track so that the Theorem 1 test then rejects all its
-    source's pulses (seed 0 below, without the remedies); coasting plus the dropout reset recovers.
-    (dokf without coasting no longer shows it here: its start beam, dokf version 3, avoids the early
-    wrong take.)"""
-    spur = simulate(CLEAN_TWO.replace(n_pulses=400, toa_jitter_std=0.05, spurious_rate=0.1), 0)
+    source's pulses (seed 33 below, without the remedies); coasting plus the dropout reset recovers.
+    (On seed 0, where a wrong take in the start showed it, the start beam of dokf version 3 and
+    pt-post version 3 avoids that take.)"""
+    spur = simulate(CLEAN_TWO.replace(n_pulses=400, toa_jitter_std=0.05, spurious_rate=0.1), 33)
     truly = spur.source < 0
     thrown = {}
     for name in ("pt-post:coast=false", "pt-post:coast=true,reset_after=4", "pt-post", "dokf"):
-        called = play(make_policy(name), spur, policy_seed=0).labels == spur.n_labels
+        called = play(make_policy(name), spur, policy_seed=33).labels == spur.n_labels
         thrown[name] = np.mean(called[~truly])
     assert thrown["pt-post:coast=false"] > 0.3
     # pt-post takes the remedies by itself when the priors state a spurious (or missing) rate

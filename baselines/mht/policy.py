@@ -26,6 +26,9 @@ _VET_MAX_SOURCES = 12  # FDP's full tree costs N^4 a pulse: larger scenes are no
 _VET_SLACK = 0.1  # unexplained pulses allowed beyond the spurious rate, and the gain a restart must bring
 _VET_LOOK = 256  # at most this many arrivals per chain
 _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies and the window's pulse rate
+# p_gap's floor when a rate is estimated (the priors leave it unknown, or `rates` estimate): a track lost in a
+# dense scene is then not read as a source that stopped (docs/mht.md, "Restart")
+_GAP_ESTIMATED = 1e-2
 
 
 # Work arrays of finished policies by shape, for the next reset: fresh ones cost their page faults anew
@@ -52,7 +55,8 @@ PARAMS = declare(
     Param("look", int, _LOOK, "arrivals looked ahead to judge a hit", low=0, high=_N),
     Param("lag", int, 1024, "the env lag: the start's buffer, at most lag - nscan pulses", low=0, high=_N),
     Param("gate", float, 4.0, "the gate, in innovation standard deviations", low=0, low_open=True),
-    Param("p_gap", float, 1e-6, "a source switching off and on again: the most a run of misses costs", low=0,
+    Param("p_gap", float, 1e-6, "a source switching off and on again: the most a run of misses costs (at least "
+          "1e-2 where a rate is estimated)", low=0,
           high=1, low_open=True, high_open=True),
     Param("rates", str, "priors", "priors: the priors' miss/spurious rates (unknown ones estimated); estimate: both "
           "estimated online", choices=("priors", "estimate")),
@@ -168,7 +172,9 @@ class MHT:
                     and float(np.mean(width)) * float(np.sum(1.0 / priors.period)) >= self.dense)
         self.cfg = Settings(
             gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
-            log_gap=math.log(self.p_gap), pulse_rate=float(np.sum(1.0 / priors.period)),
+            log_gap=math.log(self.p_gap if stated and np.isfinite(priors.missing_prob) and np.isfinite(
+                priors.spurious_rate) else max(self.p_gap, _GAP_ESTIMATED)),
+            pulse_rate=float(np.sum(1.0 / priors.period)),
             known_q=float(priors.missing_prob) if stated else math.nan,
             known_r=float(priors.spurious_rate) if stated else math.nan,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,

@@ -84,14 +84,13 @@ from baselines.fdp_start import _START_GATE, initiate
 from baselines.jit_cache import guard
 from baselines.kalman import Block, DLMModel, innovation, overdue, predict, prior_block, update
 from baselines.kalman_jit import kf_predict, kf_update
-from deint_env.episode import Priors
+from deint_env.episode import DEFAULT_WIDTH_REL, Priors
 from deint_env.errors import NotApplicable, check
 from deint_env.params import Param, ParamSet, declare
 
 # Node state: per hypothesis, per source, these fields (the block, then pulses assigned so far).
 PERIOD, TAU, P_TT, P_TX, P_XX, COUNT = range(6)
 _MIN_JITTER_REL = 1e-6  # R floor, relative to the shortest prior period, for noise-free channels
-_GUESS_REL = 0.05  # the period and phase deviations `Priors.from_json_dict` fills in for a file stating none
 # The most S the likelihood cost counts while the widths are guessed, in R (`FDPLikelihood`): the spread of the
 # prediction of a source's period and phase fitted to its first n = 4 pulses alone, R (1 + 1/n + 3 (n+1) / (n (n-1))).
 _GUESSED_S_CAP = 2.5
@@ -100,7 +99,7 @@ _GUESSED_S_CAP = 2.5
 def _widths_guessed(priors: Priors) -> bool:
     """The priors state neither deviation: both are the parser's guess, 5 % of each period (simulated
     episodes' priors state theirs, and no suite's equal that guess).  The priors carry no flag for it."""
-    guess = _GUESS_REL * priors.period
+    guess = DEFAULT_WIDTH_REL * priors.period
     known = np.isfinite(priors.phase)
     return bool(np.array_equal(priors.period_std, guess) and np.array_equal(priors.phase_std[known], guess[known]))
 

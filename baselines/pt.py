@@ -82,9 +82,10 @@ fills the 32 places with variants of one wrong start, and the true labelling, wo
 by the start's end, falls out early (16 sources at jitter 0.01 of the shortest period, rates stated
 0: the 83rd of 512 extensions at the 6th pulse; 0.34 of the labels right over validation seeds
 101-103, 0.64 with 128 or 512 places, 0.91 with the rule and 32 in version 4, 0.90 with pi back in
-version 5).  The deviation leaves out R, and is one, not two: with R, or at two, two sources of close periods that swap coincident pulses (core-v0's
-4-source scene, periods 14.04 and 14.64) look alike until they cross, and the swapped labelling, a
-little better then, took the true one's place (0.88 -> 0.28 of that episode's labels right).
+version 5).  The deviation leaves out R, and is one, not two: with R, or at two, two sources of close
+periods that swap coincident pulses (core-v0's 4-source scene, periods 14.04 and 14.64) look alike
+until they cross, and the swapped labelling, a little better then, took the true one's place (0.88 ->
+0.28 of that episode's labels right).
 
 Acquisition (`pt-post`).  The teacher's draw is as blind as a single decision to which fresh track a
 first pulse starts.  On the independent generator's dense files (8 sources, jitter 0.01 of the shortest

@@ -7,10 +7,10 @@ busy machine is the CPU time stretched by the other load):
    anchored ones on a core-v0 episode with its priors file, blind-only ones on a blind-v0 episode with
    its blind priors file, the pdw-* ones on pdw-v0's 5-emitter staring scenario cut to 1000 pulses and
    written as a challenge file (their descriptors); `tree` on that core-v0 scenario cut to its limit of
-   20 pulses (it cannot label 1000).  Cold: a fresh numba cache (NUMBA_CACHE_DIR a new temporary folder: every kernel the policy
-   calls is compiled); warm: the median of --repeats runs on the cache the cold run filled.  The
-   `notice` column says whether the run printed deint's "compiling ..." line (it should, cold, for a
-   policy with numba kernels, and never warm).
+   20 pulses (it cannot label 1000).  Cold: a fresh numba cache (NUMBA_CACHE_DIR a new temporary
+   folder: every kernel the policy calls is compiled); warm: the median of --repeats runs on the cache
+   the cold run filled.  The `notice` column says whether the run printed deint's "compiling ..." line
+   (it should, cold, for a policy with numba kernels, and never warm).
 3. For scale, the floor any numba-compiled policy pays: a fresh process importing numba and calling one
    trivial kernel from a warm cache (numba's import, its BLAS check importing scipy.linalg, and the set-up
    of its code generator on the first cached load).
@@ -114,7 +114,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="deint-numba-floor-") as tmp:
         (Path(tmp) / "floor_kernel.py").write_text(
             "import numba\n\n@numba.njit(cache=True)\ndef one(x):\n    return x + 1.0\n")
-        cmd = [sys.executable, "-c", f"import sys; sys.path.insert(0, {tmp!r}); import floor_kernel; floor_kernel.one(1.0)"]
+        cmd = [sys.executable, "-c",
+               f"import sys; sys.path.insert(0, {tmp!r}); import floor_kernel; floor_kernel.one(1.0)"]
         subprocess.run(cmd, check=True, env=dict(os.environ, NUMBA_CACHE_DIR=tmp))  # fills the cache
         wall, cpu, _ = median_of(cmd, args.repeats, dict(os.environ, NUMBA_CACHE_DIR=tmp))
         print(f"{'numba floor: one cached kernel':<40} {wall:6.2f} s ({cpu:.2f} s CPU)")

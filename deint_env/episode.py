@@ -16,6 +16,7 @@ DESCRIPTORS = ("frequency", "pulse_width", "aoa")  # Episode's optional pulse de
 LIBRARY = ("frequency", "frequency_std", "pulse_width", "pulse_width_std", "aoa", "aoa_std")
 SCALARS = ("jitter_std", "pri_jitter_std", "missing_prob", "spurious_rate", "coincidence_resolution")
 RATES = ("missing_prob", "spurious_rate")  # NaN = unknown (a policy estimates it), distinct from 0
+DEFAULT_WIDTH_REL = 0.05  # a priors file's unstated period and phase deviations: this fraction of each period
 # Numbers a priors file may hold, in any time unit: the trackers square and multiply them (a jitter of
 # 1e200 overflowed to a traceback in seven policies; a period of 5e-324 has no finite rate), and 1e30
 # leaves room for fourth powers while spanning seconds to picoseconds.
@@ -202,8 +203,8 @@ class Priors:
             n_labels=n,
             period=period,
             phase=phase if phase is not None else np.full(n, np.nan),
-            period_std=period_std if period_std is not None else 0.05 * period,
-            phase_std=phase_std if phase_std is not None else (0.05 * period if phase is not None
+            period_std=period_std if period_std is not None else DEFAULT_WIDTH_REL * period,
+            phase_std=phase_std if phase_std is not None else (DEFAULT_WIDTH_REL * period if phase is not None
                                                                else np.full(n, np.nan)),
             source_prob=prob if prob is not None else rate / rate.sum(),
             amplitude=amplitude,

@@ -170,13 +170,13 @@ class MHT:
         width = 2.0 * self.gate * np.sqrt(first_s)
         initiate = (bool(np.all(width < p[:, PERIOD]))
                     and float(np.mean(width)) * float(np.sum(1.0 / priors.period)) >= self.dense)
+        known_q = float(priors.missing_prob) if stated else math.nan  # NaN: estimated online
+        known_r = float(priors.spurious_rate) if stated else math.nan
+        estimated = math.isnan(known_q) or math.isnan(known_r)
         self.cfg = Settings(
             gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
-            log_gap=math.log(self.p_gap if stated and np.isfinite(priors.missing_prob) and np.isfinite(
-                priors.spurious_rate) else max(self.p_gap, _GAP_ESTIMATED)),
-            pulse_rate=float(np.sum(1.0 / priors.period)),
-            known_q=float(priors.missing_prob) if stated else math.nan,
-            known_r=float(priors.spurious_rate) if stated else math.nan,
+            log_gap=math.log(max(self.p_gap, _GAP_ESTIMATED) if estimated else self.p_gap),
+            pulse_rate=float(np.sum(1.0 / priors.period)), known_q=known_q, known_r=known_r,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
             horizon_start=(max(self.look_start, self.look_init if initiate else 0) + 0.5) * t_max * 1.05
             + 4.0 * float(np.max(phase_std)),

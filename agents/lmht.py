@@ -238,8 +238,9 @@ def candidates(episode, scorer: Scorer, beta: float, rng: np.random.Generator, *
     cap = len(episode) * (5 * n + 1)  # per source: two arrivals, each with a period jump, and a restart
     feat, base = np.zeros((cap, N_FEATURES)), np.zeros(cap)
     right, group = np.zeros(cap, np.bool_), np.zeros(cap, np.int64)
-    rows = _follow(toa, right_labels(episode), agent.cur, agent.nxt, agent.zob, agent.prior, agent.scratch, agent.cfg,
-                   scorer, agent.counts, rng.random(len(episode)), float(beta), feat, base, right, group)
+    rows = _follow(toa, right_labels(episode), agent.cur, agent.nxt, agent.zob, agent.prior, agent.scratch,
+                   agent.settings[0], scorer, agent.counts, rng.random(len(episode)), float(beta), feat, base, right,
+                   group)
     return feat[:rows], base[:rows], right[:rows], group[:rows]
 
 

@@ -108,6 +108,18 @@ def test_every_compiled_kalman_function_is_tested():
                                                           "kf_update_div", "drift_terms"}
 
 
+def test_the_covariance_update_is_written_once_per_form():
+    """P_TT' = P_TT - P_Tx^2 / S, the update's signature term, is written in kalman.py (numpy) and
+    kalman_jit.py (compiled) only: every tracker calls one of them (issue 24)."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    term = re.compile(r"\bp_?tx\s*\*\s*(?:\w+\.)?p_?tx\b", re.IGNORECASE)
+    files = sorted((root / "baselines").rglob("*.py")) + sorted((root / "agents").rglob("*.py"))
+    where = {str(f.relative_to(root)) for f in files if term.search(f.read_text())}
+    assert where == {"baselines/kalman.py", "baselines/kalman_jit.py"}
+
+
 def test_a_kernel_modules_dependencies_are_the_project_files_it_imports_from():
     import baselines.mht.kernels as k
 

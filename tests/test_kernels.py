@@ -131,8 +131,8 @@ def _initiated(toa, priors):
     policy = MHT(dense=0)
     policy.reset(priors, {})
     blk = policy.cur.blk[0].copy()
-    log_q, log_1mq, _ = rates(policy.cfg, np.zeros(3, np.int64))
-    initiate(toa, toa.size, blk, policy.cfg, log_q, log_1mq)
+    log_q, log_1mq, _ = rates(policy.settings[0], np.zeros(3, np.int64))
+    initiate(toa, toa.size, blk, policy.settings[0], log_q, log_1mq)
     return blk
 
 

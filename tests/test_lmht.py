@@ -114,7 +114,7 @@ def _settings(scenario: str, **params):
     """An mht reset on the scenario's priors: its compiled settings (stated rates, misfit)."""
     agent = MHT(**params)
     agent.reset(simulate(find_entry(scenario).spec.replace(n_pulses=50), 0).priors, {})
-    return agent.cfg
+    return agent.settings[0]  # the record the kernels take
 
 
 def test_misfit_is_the_likelihood_ratio_of_the_decided_rates_against_the_stated_ones():

@@ -153,7 +153,7 @@ def test_mht_starts_a_crowded_scene_jointly():
     # the start itself: tracks started at (within 3 sigma_w of) their source's first pulse
     policy = make_policy("mht")
     policy.reset(ep.priors, {})
-    cfg, toa = policy.cfg, np.ascontiguousarray(ep.toa)
+    cfg, toa = policy.settings[0], np.ascontiguousarray(ep.toa)
     end = min(cfg.reserve + 1, int(np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right")))
     blk = policy.cur.blk[0].copy()
     log_q, log_1mq, _ = kernels.rates(cfg, np.zeros(3, np.int64))
@@ -177,7 +177,7 @@ def test_mht_joint_start_leaves_a_faster_sources_harmonic_alone(seed):
                     period_std=np.array([0.1, 0.4]), phase_std=np.array([0.5, 2.0]), jitter_std=0.1)
     policy = make_policy("mht:dense=0")
     policy.reset(priors, {})
-    cfg = policy.cfg
+    cfg = policy.settings[0]
     end = min(cfg.reserve + 1, int(np.searchsorted(toa, toa[0] + cfg.horizon_start, side="right")))
     blk = policy.cur.blk[0].copy()
     log_q, log_1mq, _ = kernels.rates(cfg, np.zeros(3, np.int64))
@@ -436,7 +436,7 @@ def test_mht_starts_exchangeable_tracks_from_the_relative_frequencies():
     np.testing.assert_allclose(policy.estimates()["period"], periods, rtol=0.05)
     # the start's likelihood (`_loglik`) scores a labelling under the tracks' priors: under the informed
     # prior the true labelling beats the one with tracks 0 and 1 swapped (under the stated ones they tie)
-    cfg = policy.cfg
+    cfg = policy.settings[0]
     log_q, log_1mq, log_rho = kernels.rates(cfg, np.zeros(3, np.int64))
     blk = policy.prior
     right = start._loglik(toa[:300], src[:300], blk, cfg, log_q, log_1mq, log_rho)
@@ -461,3 +461,22 @@ def test_fdp_core_decides_a_window_in_one_call_as_pulse_by_pulse(init):
     np.testing.assert_array_equal(whole.decide_all(toa, 3), by_pulse)
     np.testing.assert_array_equal(whole.best_state(), one.best_state())
     assert len(set(by_pulse)) == 3  # every source (FDP gives every pulse to one): not a trivial window
+
+
+def test_packed_settings_hold_every_field_of_the_named_tuple():
+    """The kernels read `pack(cfg, fit)` (one record array: cheap to hand a compiled call once a pulse):
+    every field as the NamedTuple holds it, NaN rates and infinite margins included."""
+    from baselines.mht.state import SETTINGS, Settings, pack
+
+    from deint_env.suites import resolve_scenario
+
+    policy = make_policy("mht:lag=3,nscan=3,margin=20,rates=estimate")  # rates estimated: NaN known_q, known_r
+    policy.reset(simulate(resolve_scenario("core-v0/core-n2-spread1.5-jitter0.05"), 0).priors, {})
+    assert policy.settings.dtype == SETTINGS and policy.settings.shape == (2,)
+    for row, named in zip(policy.settings, (policy.cfg, policy.fit)):
+        for field, want in named._asdict().items():
+            got = getattr(row, field)
+            assert got == want or (math.isnan(got) and math.isnan(want)), field
+    assert set(SETTINGS.names) == set(Settings._fields)
+    assert pack(policy.cfg)[0].margin == policy.cfg.margin
+

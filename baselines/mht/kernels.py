@@ -40,10 +40,10 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
         t, tau, ptt, ptx, pxx = st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4]
         steps, total, depth = st[top, 5], st[top, 6], st[top, 7]
         d_xx, d_tx, d_tt = drift_terms(drift, t, steps)
-        p_tx = ptx + steps * ptt + d_tx
-        p_xx = pxx + 2.0 * steps * ptx + steps * steps * ptt + steps * interval_var + d_xx
+        pred, p_tx, p_xx = kf_predict_steps(t, tau, ptt, ptx, pxx, steps, interval_var)
+        p_tx = p_tx + d_tx
+        p_xx = p_xx + d_xx
         s = p_xx + jitter_var
-        pred = tau + steps * t
         half = math.sqrt(gate2 * s)
         if depth >= look or pred + half > newest:
             if total > best:
@@ -74,9 +74,9 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
         for r in range(nb - 1, -1, -1):
             j = order[r]
             e = toa[j] - pred
-            g, r_s = e / s, jitter_var / s
-            st[top, 0], st[top, 1], st[top, 2] = t + p_tx * g, pred + p_xx * g, ptt + d_tt - p_tx * p_tx / s
-            st[top, 3], st[top, 4], st[top, 5] = p_tx * r_s, p_xx * r_s, 1.0
+            st[top, 0], st[top, 1], st[top, 2], st[top, 3], st[top, 4] = kf_update_div(t, pred, ptt + d_tt, p_tx, p_xx,
+                                                                                      e, s, jitter_var)
+            st[top, 5] = 1.0
             st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
             st[top, 7] = depth + 1.0
             top += 1
@@ -406,11 +406,13 @@ def rates(cfg, counts, span=0.0):
 
 
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, cfg, fit, counts, labels, n_labels, net):
+def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, settings, counts, labels, n_labels, net):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
-    `swapped` when the beam now lives in `nxt`."""
+    `swapped` when the beam now lives in `nxt`.  `settings`: `pack(cfg, fit)`, fit the search while the
+    misfit gate is closed."""
+    cfg, fit = settings[0], settings[1]
     n = cur.blk.shape[1]
     ring = cfg.nscan + 1
     newest = toa[n_seen - 1]

@@ -15,7 +15,7 @@ from baselines.mht.kernels import _run, rates
 from baselines.mht.scorer import Scorer
 from baselines.mht.start import _explained, _loglik
 from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Scratch,
-                                 Settings)
+                                 Settings, pack)
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable, check
 from deint_env.params import Param, declare
@@ -195,6 +195,7 @@ class MHT:
         self.fit = self.cfg._replace(dead=_DEAD, look=_LOOK, look_restart=self.look_start, jump=0.0, jump_z2=0.0)
         if 0 < self.wide_from <= n:  # a wider search where the model fits: dense scenes lose fewer tracks
             self.fit = self.fit._replace(beam=self.beam, margin=math.inf)
+        self.settings = pack(self.cfg, self.fit)  # what the kernels read (`state.SETTINGS`)
         self.priors, self.vetted = priors, False  # the prior-consistency test is still to run (`_vet`)
         # it runs when every track's first arrival is predicted to within a period (its gate's half-width; a
         # vague period or phase fails this): then the priors predict where each source's pulses are
@@ -303,7 +304,7 @@ class MHT:
                 self._vet(end)
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
-            self.scratch, self.cfg, self.fit, self.counts, self.labels, self.n_labels, self.net)
+            self.scratch, self.settings, self.counts, self.labels, self.n_labels, self.net)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
 
@@ -311,7 +312,7 @@ class MHT:
         """The prior-consistency test and the data-driven restart, or for priors that predict no first
         arrival the multi-start (see the module docstring): the first `end` pulses (what the driver has
         buffered before it labels pulse 0) against the priors."""
-        n, cfg = self.n, self.cfg
+        n, cfg = self.n, self.settings[0]  # (the record the kernels take)
         unknown = math.isnan(cfg.known_q) or math.isnan(cfg.known_r)
         if end < 2 * n or not (n <= _VET_MAX_SOURCES or (unknown and self.vettable)):
             return
@@ -363,7 +364,7 @@ class MHT:
         window (see the module docstring).  Each candidate's beam labels the window; the labellings are
         scored alike (`_loglik`, under the informed prior) and the likeliest candidate starts the beam.
         Its tracks are later given the labels whose informed periods fit them best (`_identities`)."""
-        cfg = self.cfg
+        cfg = self.settings[0]  # (the record the kernels take)
         toa = np.ascontiguousarray(self.toa[:end])
         log_q, log_1mq, log_rho = rates(cfg, self.counts)
         rate, rate_var = self._rate_periods(toa)
@@ -396,7 +397,7 @@ class MHT:
         cur.blk[0] = blk
         cur.key[0] = self.cur.key[0]
         labels = np.zeros(toa.size, np.int64)
-        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.cfg, self.fit,
+        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.settings,
                                 self.counts.copy(), labels, 0, self.net)
         return labels, (nxt if swapped else cur).blk[0].copy()
 

@@ -12,21 +12,26 @@ labels (accuracy, P_e per source, V-measure, ARI, AMI, cluster MCC/F1, spurious 
 period and phase errors): equal metrics across them are the check a results file allows, since it
 does not store the labels.  Submissions are not replayed (their labels came from outside).
 
-    python benchmarks/replay_board.py robust-v0 [--policies mht,fdp] [--workers 2] [--work runs/replay]
+    python benchmarks/replay_board.py robust-v0 [--policies mht,fdp] [--policy mht:lag=3,nscan=3] [--workers 2]
+        [--work runs/replay]
 
 Prints, per policy, how many episodes were compared and how many differ (with the first difference);
-asserts nothing.
+asserts nothing.  `--adopt POLICY` writes that policy's replayed records into the board in place of those
+that differ (ekf-bank's period estimates and, on 3 robust-v0 episodes, its labels moved with numpy's last
+bits since they were recorded: docs/leaderboards.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import os
 from collections import defaultdict
 from pathlib import Path
 
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, current_versions
-from deint_env.results import EpisodeRecord, read_records
+from deint_env.results import EpisodeRecord, read_records, results_lock
 from deint_env.runner import evaluate
 
 TIMING = {"us_per_pulse"}
@@ -56,11 +61,17 @@ def differences(old: EpisodeRecord, new: EpisodeRecord, tol: float = 0.0) -> lis
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("suite")
-    ap.add_argument("--policies", default=None, help="only these board policies (comma-separated specs)")
+    ap.add_argument("--policies", default=None, help="only these board policies (comma-separated plain names)")
+    ap.add_argument("--policy", action="append", default=[],
+                    help="only this board policy spec (repeatable; a spec may hold commas: mht:lag=3,nscan=3)")
     ap.add_argument("--root", type=Path, default=DEFAULT_ROOT)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("runs/replay"))
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--adopt", action="append", default=[], metavar="SPEC",
+                    help="write this policy's replayed records into the board's results.jsonl in place of the "
+                         "checked-in ones (a policy whose last bits moved with the libraries); then rebuild the "
+                         "board with `deint leaderboard --suite SUITE`")
     args = ap.parse_args()
 
     folder = args.root / args.suite
@@ -71,7 +82,7 @@ def main() -> None:
     records = [r for r in records if current[r.policy] is not None and r.policy_version == current[r.policy]]
     if stale:
         print(f"{stale} records of an older policy version are not compared (the board lists them as stale)")
-    wanted = set(args.policies.split(",")) if args.policies else None
+    wanted = set(args.policies.split(",") if args.policies else ()) | set(args.policy) or None
     by_policy: dict[str, dict] = defaultdict(dict)
     for r in records:
         if wanted is None or r.policy in wanted:
@@ -79,7 +90,7 @@ def main() -> None:
 
     args.work.mkdir(parents=True, exist_ok=True)
     out = args.work / f"{args.suite}.jsonl"
-    rows = []
+    rows, adopted = [], {}
     for policy, old in sorted(by_policy.items()):
         targets = [args.suite] if scope.scenarios is None else [f"{args.suite}/{s}" for s in scope.scenarios]
         new: dict = {}
@@ -92,6 +103,8 @@ def main() -> None:
         bad = [(k, d) for k in inexact if (d := differences(old[k], new[k], TOLERANCE))]
         version = {r.policy_version for r in new.values()} - {current[policy]}
         rows.append((len(keys), len(inexact), len(bad)))
+        if policy in args.adopt:
+            adopted.update({(policy, *k): new[k] for k in inexact})
         first = f"  first: {bad[0][0]} {bad[0][1][0]}" if bad else ""
         print(f"{policy}: {len(keys)} compared, {len(keys) - len(inexact)} equal bit for bit, "
               f"{len(inexact) - len(bad)} within {TOLERANCE:g}, {len(bad)} differ"
@@ -100,6 +113,27 @@ def main() -> None:
     compared, inexact, differ = (sum(r[i] for r in rows) for i in range(3))
     print(f"\n{args.suite}: {len(rows)} policies, {compared} episodes replayed and compared: "
           f"{compared - inexact} equal bit for bit, {inexact - differ} within {TOLERANCE:g}, {differ} differ")
+    if adopted:
+        adopt(folder / RESULTS, adopted, current)
+        print(f"adopted {len(adopted)} replayed records of {', '.join(sorted(args.adopt))} into {folder / RESULTS}; "
+              f"rebuild the board: deint leaderboard --suite {args.suite}")
+
+
+def adopt(path: Path, replayed: dict, current: dict) -> None:
+    """The board's results file with each current record that has a replayed one (policy, scenario, seed)
+    replaced by it, line for line (other lines as they were), written atomically under the file's lock."""
+    with results_lock(path):
+        lines = path.read_text().splitlines(keepends=True)
+        out = []
+        for line in lines:
+            data = json.loads(line)
+            key = (data["policy"], data["scenario"], data["seed"])
+            fresh = replayed.get(key)
+            keep = fresh is None or data.get("submitted") or data.get("policy_version", 1) != current[data["policy"]]
+            out.append(line if keep else fresh.line())
+        tmp = path.with_name(f".{path.name}.adopt.tmp")
+        tmp.write_text("".join(out))
+        os.replace(tmp, path)
 
 
 if __name__ == "__main__":

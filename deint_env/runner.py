@@ -266,6 +266,9 @@ def fault_record(job: Job, error: str) -> EpisodeRecord:
     return _record(job, spec, lag=None, n_sources=simulate(spec, job.seed).truth.n_sources, fault=error)
 
 
+# A local pool forks its workers at once (the fork start method): 10^5 asked for would fork 10^5 processes
+MAX_WORKERS = 1024
+
 # The (policy spec, scenario) pairs this process has played.  A compiled (numba) policy's first play in a
 # process loads its kernels from the cache, or compiles them: ~0.5 s (seconds in a fresh clone) that would
 # be timed as that episode's (500 us a pulse on a 1000-pulse episode, more than the policy's own time over
@@ -322,6 +325,7 @@ def _played_record(job: Job, spec: ScenarioSpec, episode: Episode, res: PlayResu
     n_sources = episode.truth.n_sources
     genie_acc, random_acc = reference_accuracies(episode)
     metrics: dict[str, Any] = dict(res.metrics)
+    metrics.pop("lag", None)  # the env reports it; the record holds it once, as its field (as a results file does)
     metrics.update(genie_accuracy=genie_acc, random_accuracy=random_acc,
                    score=normalised_score(res.metrics["accuracy"], random_acc, genie_acc))
     if res.estimates is not None:
@@ -421,6 +425,12 @@ def _worker_init(parent: int) -> None:
             os._exit(1)
 
 
+def check_workers(workers: Any) -> None:
+    """One line for a worker count that is not an integer in [1, MAX_WORKERS]."""
+    if not isinstance(workers, int) or isinstance(workers, bool) or not 1 <= workers <= MAX_WORKERS:
+        raise DeintError(f"workers={workers!r} is invalid: an integer in [1, {MAX_WORKERS}]")
+
+
 def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_seeds: int | None = None,
              workers: int = 1, out: str | os.PathLike | None = None, progress: bool = True,
              executor: str = "local", address: str | None = None) -> list[EpisodeRecord]:
@@ -434,8 +444,7 @@ def evaluate(policies: Iterable[str], target: str, *, split: str = "test", max_s
     belongs to).  Either way the records are the same but for the wall-clock us_per_pulse.  Locally, a
     BatchPolicy's jobs are played in batches (`make_tasks`: one task per batch); Ray plays every job alone.
     """
-    if not isinstance(workers, int) or workers < 1:
-        raise DeintError(f"workers={workers!r} is invalid: an integer >= 1")
+    check_workers(workers)
     if executor not in EXECUTORS:
         raise DeintError(f"executor={executor!r} is invalid: one of {', '.join(EXECUTORS)}")
     if address is not None and executor != "ray":

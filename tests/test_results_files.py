@@ -52,6 +52,16 @@ def test_checked_in_results_read_and_round_trip(suite):
         assert EpisodeRecord.from_json(data).to_json() == {"policy_version": 1, **data}
 
 
+def test_a_played_record_is_the_record_its_file_line_reads_back(tmp_path):
+    """What evaluate returns equals what the results file holds, field for field and metric for metric
+    (the env's `lag` metric is the record's `lag` field, once): a replay compares them as they are."""
+    out = tmp_path / "r.jsonl"
+    played = runner.evaluate(["fdp", "mht:lag=3,nscan=3"], TARGET, max_seeds=1, out=out, progress=False)
+    assert [dataclasses.replace(r, metrics={**r.metrics, "us_per_pulse": 0.0}) for r in played] == [
+        dataclasses.replace(r, metrics={**r.metrics, "us_per_pulse": 0.0}) for r in read_records(out)]
+    assert all("lag" not in r.metrics and r.lag == (3 if r.policy != "genie" else 0) for r in played)
+
+
 @pytest.mark.parametrize("line,problem", [
     ("{}", "is not a results record: it has no policy"), ("5", "is not a results record (a JSON object), but 5"),
     ("null", "but null"), ("[1, 2]", "but [1, 2]"), ('"x"', 'but "x"'),

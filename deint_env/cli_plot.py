@@ -26,6 +26,7 @@ from deint_env.formats import tdc
 
 INCH = 100  # dots per inch: the figure size in inches is the picture's size in hundreds of pixels
 NO_MATPLOTLIB = "deint plot needs matplotlib: pip install 'deint-bench[plot]'"
+MAX_DRAWN_TOA = 1e300  # near float64's limit the ΔTOAs and the axes' margins overflow to inf in matplotlib
 
 
 def _add_plot(sub) -> None:
@@ -71,6 +72,10 @@ def cmd_plot(args: argparse.Namespace) -> int:
     n = toa.size if args.first is None else min(args.first, toa.size)
     if n < 2:
         raise DeintError(f"{args.pulses}: has {toa.size} pulse(s); a ΔTOA plot needs at least 2")
+    big = np.flatnonzero(np.abs(toa[:n]) > MAX_DRAWN_TOA)
+    if big.size:
+        raise DeintError(f"{args.pulses}: pulse {int(big[0]) + 1} has toa={float(toa[big[0]])!r}, too large to draw; "
+                         f"deint plot draws TOAs in [-{MAX_DRAWN_TOA:g}, {MAX_DRAWN_TOA:g}]")
     panels = [("by label (--labels)", "label", labels), ("by true source (the file's)", "source", source)]
     panels = [(title, kind, ids[:n]) for title, kind, ids in panels if ids is not None]
     if not panels:

@@ -250,6 +250,8 @@ def _parse_value(text: str, where: str) -> Any:
         if len(text.lstrip("+-")) > 19 or abs(int(text)) >= MAX_SEED:
             raise DeintError(f"{where} is out of range: integers in policy parameters are below 2^63 in size")
         return int(text)
+    if not text.isascii() or "_" in text:  # float() reads '1_0' as 10 and non-ASCII digits: not numbers here
+        return text
     try:
         value = float(text)
     except ValueError:

@@ -32,13 +32,15 @@ import numpy as np
 
 from deint_env.divisions import admits, check_division
 from deint_env.errors import DeintError
-from deint_env.policies import canonical_spec, make_policy, policy_info
+from deint_env.formats.files import check_output
+from deint_env.policies import canonical_spec, check_policy_seed, make_policy, policy_info
 from deint_env.suites import load_suite
 
 METHOD = "successive halving"
 # How many draws per wanted candidate before giving up: rejected draws (a lag outside the division, an
 # invalid combination such as mht's nscan > lag) and repeats are redrawn.
 DRAWS_PER_CONFIG = 50
+MAX_CONFIGS = 1000  # about a second to draw and build; rung 0 plays each candidate on every scenario anyway
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -315,6 +317,7 @@ def _mean_scores(records: list, specs: set[str]) -> dict[str, float]:
 
 
 def _write_atomic(path: Path, text: str) -> None:
+    check_output(path)  # renaming over a symbolic link, FIFO or device node would replace it
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -333,15 +336,18 @@ def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 20
     """Tune `policy` on the validation seeds of `suite` (or some of its scenarios) for `division`
     within `budget` plays; write the preset to `out` (default `default_preset_path`)."""
     from deint_env import __version__
-    from deint_env.runner import evaluate
+    from deint_env.runner import check_workers, evaluate
 
     suite_obj = load_suite(suite)
     names = tuple(scenarios)
     for name in names:
         suite_obj.entry(name)  # one line for a scenario not in the suite
     entries = [e for e in suite_obj if not names or e.name in names]
-    if not isinstance(configs, int) or isinstance(configs, bool) or configs < 1:
-        raise DeintError(f"configs={configs!r} is invalid: an integer >= 1")
+    # the candidates are drawn and built before the budget cuts them: an unbounded count never ends
+    if not isinstance(configs, int) or isinstance(configs, bool) or not 1 <= configs <= MAX_CONFIGS:
+        raise DeintError(f"configs={configs!r} is invalid: an integer in [1, {MAX_CONFIGS}]")
+    check_policy_seed(seed, "seed")  # numpy's generators take no negative seed
+    check_workers(workers)  # before the schedule is printed
     if not isinstance(budget, int) or isinstance(budget, bool) or budget < 1:  # before any policy is built
         raise DeintError(f"budget={budget!r} is invalid: an integer >= 1 (episode plays)")
     pool = candidates(policy, division, configs, seed)
@@ -349,8 +355,13 @@ def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 20
     rungs = schedule(len(pool), eta, budget, len(entries), n_valid)
     pool = pool[:rungs[0].configs]
     work_dir = Path(work) if work is not None else Path("runs") / "tune" / f"{policy}-{suite}-{division}"
-    work_dir.mkdir(parents=True, exist_ok=True)
     results = work_dir / "results.jsonl"
+    # the preset is written after every play: a path that cannot take it must fail now, not then
+    path = Path(out) if out is not None else default_preset_path(policy, suite, division)
+    check_output(path)
+    if os.path.realpath(path) == os.path.realpath(results):
+        raise DeintError(f"--out {path} is the plays' results file {results}; name a different preset file")
+    work_dir.mkdir(parents=True, exist_ok=True)
     targets = [f"{suite}/{e.name}" for e in entries] if names else [suite]
 
     log(f"tuning {policy} on {suite} ({len(entries)} scenarios, validation seeds) for division {division}: "
@@ -387,6 +398,5 @@ def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 20
         "command": command_line(policy, suite, division, budget, configs, eta, seed, names),
         "package_version": __version__,
     }
-    path = Path(out) if out is not None else default_preset_path(policy, suite, division)
     _write_atomic(path, json.dumps(preset, indent=2, allow_nan=False) + "\n")
     return TuneResult(preset, path, done)

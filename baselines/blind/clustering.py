@@ -15,6 +15,7 @@ import numpy as np
 from baselines.blind.descriptors import standardised
 from baselines.blind.pipeline import Deinterleaving, FoundTrain
 from baselines.blind.policy import WINDOW, BlindWindowPolicy
+from deint_env.errors import NotApplicable
 from deint_env.modulation import PRIModel
 from deint_env.params import Param, declare
 
@@ -46,12 +47,20 @@ class ClusterPolicy(BlindWindowPolicy):
     """Base of `dbscan` / `hdbscan`: cluster each window's descriptors (with `attach_features`, also
     columns such as a TDC file's frequency or angle of arrival)."""
 
+    NAME = "cluster"  # the registered name, for messages
+
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
         extra: dict[str, np.ndarray] = {}
         if amplitude is not None:
             extra["amplitude"] = amplitude
         extra.update(self.window_features(toa.size))
-        return cluster_result(toa, self.cluster(descriptors(toa, extra)))
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below, in one line
+            x = descriptors(toa, extra)
+        if not np.isfinite(x).all():  # TOA differences near float64's limit overflow when standardised
+            i = int(np.flatnonzero(~np.isfinite(x).all(axis=1))[0])
+            raise NotApplicable(f"{self.NAME}: the descriptors of pulse {i} (TOA {float(toa[i]):.3g}) overflow "
+                                f"float64; the TOAs and their differences must stay well below 1e308")
+        return cluster_result(toa, self.cluster(x))
 
     def cluster(self, x: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -59,6 +68,8 @@ class ClusterPolicy(BlindWindowPolicy):
 
 class DBSCANPolicy(ClusterPolicy):
     """`dbscan`: scikit-learn's DBSCAN (eps in standardised units, min_samples)."""
+
+    NAME = "dbscan"
 
     PARAMS = declare(Param("eps", float, 0.1, "DBSCAN's neighbourhood radius (standardised units)", low=0,
                            low_open=True),
@@ -78,6 +89,8 @@ class DBSCANPolicy(ClusterPolicy):
 
 class HDBSCANPolicy(ClusterPolicy):
     """`hdbscan`: scikit-learn's HDBSCAN (min_cluster_size, min_samples)."""
+
+    NAME = "hdbscan"
 
     PARAMS = declare(Param("min_cluster_size", int, 20, "HDBSCAN's smallest cluster", low=2),
                      Param("min_samples", int, None, "HDBSCAN's core-point neighbourhood size (none: min_cluster_size)",

@@ -7,6 +7,7 @@ degrees) with their `frequency_std`, `pulse_width_std`, `aoa_std`.  NaN and Infi
 Limits, checked before Python builds anything from the text: nesting at most `MAX_DEPTH` deep
 (Python's parser recurses, so a deeper document would raise RecursionError), integers of at most
 `MAX_INT_DIGITS` digits, and floats that are finite in float64 (1e400 is refused, not read as inf).
+A key repeated in one object is refused (json would keep its last value).
 """
 
 from __future__ import annotations
@@ -56,11 +57,22 @@ def _parse_float(text: str) -> float:
     return value
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    # json keeps the last of a repeated key: a file saying two things would be read as one silently
+    out = dict(pairs)
+    if len(out) < len(pairs):
+        seen: set[str] = set()
+        key = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise ValueError(f"key {key!r} appears twice in an object; give each key once")
+    return out
+
+
 def loads(text: str, where: str, parse_constant=_reject_constant) -> Any:
     """Parse JSON text within the module's limits; every problem is one `DeintError` line naming `where`."""
     check_depth(text, where)
     try:
-        return json.loads(text, parse_constant=parse_constant, parse_int=_parse_int, parse_float=_parse_float)
+        return json.loads(text, parse_constant=parse_constant, parse_int=_parse_int, parse_float=_parse_float,
+                          object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as e:
         raise DeintError(f"{where}: line {e.lineno} column {e.colno}: not valid JSON ({e.msg})") from None
     except (ValueError, RecursionError) as e:

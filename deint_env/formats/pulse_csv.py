@@ -109,8 +109,19 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _check_plain(path: Path, name: str, cells: list[str], allowed: str) -> None:
+    """Refuse cells that numpy reads as numbers but no decimal number spells: digit separators ('1_0'
+    reads as 10) and non-ASCII digits ('١')."""
+    joined = "".join(cells)
+    if joined.isascii() and "_" not in joined:
+        return
+    i = next(i for i, c in enumerate(cells) if not c.isascii() or "_" in c)
+    raise DeintError(f"{path}: line {i + 2}: {name}={cells[i].strip()!r} is not a decimal number; {allowed}")
+
+
 def _floats(path: Path, name: str, cells: list[str]) -> np.ndarray:
     """A column of finite floats."""
+    _check_plain(path, name, cells, f"{name} must be a finite decimal number")
     try:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
@@ -128,6 +139,7 @@ def _floats(path: Path, name: str, cells: list[str]) -> np.ndarray:
 def _ints(path: Path, name: str, cells: list[str], lo: int, hi: int, meaning: str) -> np.ndarray:
     """A column of integers in [lo, hi] ('2.0' is accepted as 2)."""
     allowed = f"{name} must be an integer in [{lo}, {hi}]{meaning}"
+    _check_plain(path, name, cells, allowed)
     try:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
@@ -141,7 +153,7 @@ def _ints(path: Path, name: str, cells: list[str], lo: int, hi: int, meaning: st
 
 
 def _check_sorted(path: Path, toa: np.ndarray) -> None:
-    bad = np.flatnonzero(np.diff(toa) < 0)
+    bad = np.flatnonzero(toa[1:] < toa[:-1])  # not np.diff: -1.7e308 to 1.7e308 overflows with a warning
     if bad.size:
         i = int(bad[0]) + 1
         raise DeintError(f"{path}: line {i + 2}: toa={float(toa[i])!r} is smaller than the previous line's toa="
@@ -230,8 +242,8 @@ def _merge_sources(path: Path, cells: list[str], source_cells: list[str], source
         cell = cells[i].strip()
         if not cell:
             continue
-        try:
-            members = [int(m) for m in cell.split("|")]
+        try:  # int() would also read '1_0' as 10 and non-ASCII digits
+            members = [int(m) for m in cell.split("|")] if cell.isascii() and "_" not in cell else None
         except ValueError:
             members = None
         if members == [src[i]]:
@@ -240,6 +252,8 @@ def _merge_sources(path: Path, cells: list[str], source_cells: list[str], source
         if members is None or any(not 0 <= m < MAX_MERGING_SOURCES for m in members):
             raise DeintError(f"{where} is invalid; allowed: source numbers in [0, {MAX_MERGING_SOURCES - 1}] "
                              f"joined by '|' (e.g. 0|2), -1 for a spurious pulse, or empty")
+        if len(set(members)) < len(members):  # '0|0': a source merged with itself is a typo, not a merge
+            raise DeintError(f"{where} names a source twice; sources lists each merged source once")
         if src[i] not in members:
             raise DeintError(f"{where} does not include the line's source={src[i]}; sources lists every source "
                              f"merged into the pulse, the primary one included")

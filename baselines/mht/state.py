@@ -134,4 +134,3 @@ SETTINGS = np.dtype((np.record, [(name, {float: np.float64, int: np.int64, bool:
 def pack(*rows: Settings) -> np.ndarray:
     """`rows` as an array of `SETTINGS` records (each row's fields by name, as numba's code reads them)."""
     return np.array([tuple(r) for r in rows], SETTINGS)
-

@@ -26,10 +26,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from collections import defaultdict
 from pathlib import Path
 
+from deint_env.formats.files import write_text
 from deint_env.leaderboard.build import DEFAULT_ROOT, RESULTS, Scope, current_versions
 from deint_env.results import EpisodeRecord, read_records, results_lock
 from deint_env.runner import evaluate
@@ -131,9 +131,7 @@ def adopt(path: Path, replayed: dict, current: dict) -> None:
             fresh = replayed.get(key)
             keep = fresh is None or data.get("submitted") or data.get("policy_version", 1) != current[data["policy"]]
             out.append(line if keep else fresh.line())
-        tmp = path.with_name(f".{path.name}.adopt.tmp")
-        tmp.write_text("".join(out))
-        os.replace(tmp, path)
+        write_text(path, "".join(out))
 
 
 if __name__ == "__main__":

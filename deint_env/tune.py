@@ -23,7 +23,6 @@ import inspect
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable, NamedTuple
@@ -32,7 +31,7 @@ import numpy as np
 
 from deint_env.divisions import admits, check_division
 from deint_env.errors import DeintError
-from deint_env.formats.files import check_output
+from deint_env.formats.files import check_output, write_text
 from deint_env.policies import canonical_spec, check_policy_seed, make_policy, policy_info
 from deint_env.suites import load_suite
 
@@ -317,16 +316,8 @@ def _mean_scores(records: list, specs: set[str]) -> dict[str, float]:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    check_output(path)  # renaming over a symbolic link, FIFO or device node would replace it
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, text)  # refuses a link, FIFO or device node; replaces the file only once written
 
 
 def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 2000, configs: int = 27,

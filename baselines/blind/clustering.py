@@ -47,7 +47,7 @@ class ClusterPolicy(BlindWindowPolicy):
     """Base of `dbscan` / `hdbscan`: cluster each window's descriptors (with `attach_features`, also
     columns such as a TDC file's frequency or angle of arrival)."""
 
-    NAME = "cluster"  # the registered name, for messages
+    name = "cluster"  # the registered name, for messages (as ekf-bank's)
 
     def label_window(self, toa: np.ndarray, amplitude: np.ndarray | None) -> Deinterleaving:
         extra: dict[str, np.ndarray] = {}
@@ -58,7 +58,7 @@ class ClusterPolicy(BlindWindowPolicy):
             x = descriptors(toa, extra)
         if not np.isfinite(x).all():  # TOA differences near float64's limit overflow when standardised
             i = int(np.flatnonzero(~np.isfinite(x).all(axis=1))[0])
-            raise NotApplicable(f"{self.NAME}: the descriptors of pulse {i} (TOA {float(toa[i]):.3g}) overflow "
+            raise NotApplicable(f"{self.name}: the descriptors of pulse {i} (TOA {float(toa[i]):.3g}) overflow "
                                 f"float64; the TOAs and their differences must stay well below 1e308")
         return cluster_result(toa, self.cluster(x))
 
@@ -69,7 +69,7 @@ class ClusterPolicy(BlindWindowPolicy):
 class DBSCANPolicy(ClusterPolicy):
     """`dbscan`: scikit-learn's DBSCAN (eps in standardised units, min_samples)."""
 
-    NAME = "dbscan"
+    name = "dbscan"
 
     PARAMS = declare(Param("eps", float, 0.1, "DBSCAN's neighbourhood radius (standardised units)", low=0,
                            low_open=True),
@@ -90,7 +90,7 @@ class DBSCANPolicy(ClusterPolicy):
 class HDBSCANPolicy(ClusterPolicy):
     """`hdbscan`: scikit-learn's HDBSCAN (min_cluster_size, min_samples)."""
 
-    NAME = "hdbscan"
+    name = "hdbscan"
 
     PARAMS = declare(Param("min_cluster_size", int, 20, "HDBSCAN's smallest cluster", low=2),
                      Param("min_samples", int, None, "HDBSCAN's core-point neighbourhood size (none: min_cluster_size)",

@@ -480,3 +480,47 @@ def test_packed_settings_hold_every_field_of_the_named_tuple():
     assert set(SETTINGS.names) == set(Settings._fields)
     assert pack(policy.cfg)[0].margin == policy.cfg.margin
 
+
+
+@pytest.mark.parametrize("cap,n,ring,look,hidden", [(1, 1, 1, 0, 0), (16, 3, 7, 6, 0), (256, 8, 25, 2, 32)])
+def test_flat_work_buffers_are_tiled_by_their_views(cap, n, ring, look, hidden):
+    """The beams and the scratch live in flat buffers the driver views as NamedTuples (`state.Flat`): every
+    view has its field's shape and dtype, no two overlap, and together they cover each buffer exactly."""
+    from baselines.mht.scorer import N_FEATURES
+    from baselines.mht.state import new_beam, new_scratch
+
+    def tiles(flat, views):
+        for buf in flat:
+            mine = [v for v in views if np.shares_memory(v, buf)]
+            assert sum(v.nbytes for v in mine) == buf.nbytes
+            for a in range(len(mine)):
+                assert mine[a].flags.c_contiguous
+                for b in range(a):
+                    assert not np.shares_memory(mine[a], mine[b])
+
+    flat, beam = new_beam(cap, n, ring)
+    tiles(flat, beam)
+    assert beam.blk.shape == (cap, n, 5) and beam.label.shape == beam.missed.shape == (cap, ring)
+    assert beam.key.dtype == np.uint64 and beam.arrivals.dtype == np.int64 and np.all(beam.last == -1)
+    c = cap * (5 * n + 1)
+    flat, scratch = new_scratch(c, n, look, hidden)
+    tiles(flat, scratch)
+    assert scratch.parent.shape == scratch.log_s.shape == (c,) and scratch.feat.shape == (5 * n + 1, N_FEATURES)
+    assert scratch.hidden.shape == (5, max(hidden, N_FEATURES)) and scratch.order.dtype == np.int64
+
+
+def test_flat_scorer_round_trips():
+    """A scorer handed to the driver as one buffer (`FlatScorer`) reads back as the same arrays, the `off`
+    scorer (no rows: never called) included; a scorer of inconsistent shapes is refused."""
+    from baselines.mht.scorer import FlatScorer, Scorer, scorer_views
+
+    rng = np.random.default_rng(0)
+    h = 5
+    net = Scorer(*(rng.standard_normal(s) for s in ((15,), (15,), (15, h), (h,), (h,), (1,))))
+    for scorer in (net, Scorer.off()):
+        back = scorer_views(*FlatScorer.of(scorer))
+        for a, b in zip(back, scorer):
+            assert a.shape == b.shape
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="shapes"):
+        FlatScorer.of(net._replace(w2=np.zeros(h + 1)))

@@ -10,10 +10,10 @@ from numba import njit
 
 from baselines.jit_cache import guard
 from baselines.kalman_jit import drift_terms, kf_predict_steps, kf_update, kf_update_div
-from baselines.mht.scorer import _learned, _pulse_terms
+from baselines.mht.scorer import _learned, _pulse_terms, scorer_views
 from baselines.mht.start import _restart_period, initiate
 from baselines.mht.state import (_BRANCH, _CACHE, _INSERTION, _LEARNED, _LOG_2PI, _PRIOR_MEAN, _PRIOR_WEIGHT, _Q_FLOOR,
-                                 _R_FLOOR, _R_ZERO, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU)
+                                 _R_FLOOR, _R_ZERO, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, beam_views, scratch_views)
 from baselines.survivor import same_last
 
 
@@ -405,16 +405,29 @@ def rates(cfg, counts, span=0.0):
     return math.log(q), math.log1p(-q), math.log(r * cfg.pulse_rate)
 
 
+# the views of the flat work buffers (state.Flat, scorer.FlatScorer), made inside the driver
+_beam_views = njit(cache=True, nogil=True)(beam_views)
+_scratch_views = njit(cache=True, nogil=True)(scratch_views)
+_scorer_views = njit(cache=True, nogil=True)(scorer_views)
+
+
 @njit(cache=True, nogil=True)
-def _run(toa, n_seen, ended, k, size, cur, nxt, zob, prior, w, settings, counts, labels, n_labels, net):
+def _run(toa, n_seen, ended, k, size, cur_f, cur_i, nxt_f, nxt_i, cap, zob, prior, w_f, w_i, look, settings, counts,
+         labels, n_labels, net_f, net_rows, net_cols, net_hidden):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
-    `swapped` when the beam now lives in `nxt`.  `settings`: `pack(cfg, fit)`, fit the search while the
-    misfit gate is closed."""
+    `swapped` when the beam now lives in `nxt`.  The beams (`cap` hypotheses), the scratch (its look-ahead
+    depth `look`) and the scorer come as their flat buffers (`state.Flat`, `scorer.FlatScorer`: arrays, not
+    NamedTuples, which numba types argument by argument on every call).  `settings`: `pack(cfg, fit)`, fit
+    the search while the misfit gate is closed."""
     cfg, fit = settings[0], settings[1]
-    n = cur.blk.shape[1]
+    n = prior.shape[0]
     ring = cfg.nscan + 1
+    cur = _beam_views(cur_f, cur_i, cap, n, ring)
+    nxt = _beam_views(nxt_f, nxt_i, cap, n, ring)
+    net = _scorer_views(net_f, net_rows, net_cols, net_hidden)
+    w = _scratch_views(w_f, w_i, cap * (5 * n + 1), n, look, net_hidden)
     newest = toa[n_seen - 1]
     swapped = False
     while k < n_seen:

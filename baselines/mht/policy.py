@@ -11,10 +11,10 @@ import numpy as np
 
 from baselines.kalman import DLMModel, prior_block
 from baselines.mht.kernels import _run, rates
-from baselines.mht.scorer import Scorer
+from baselines.mht.scorer import FlatScorer, Scorer
 from baselines.mht.start import _explained, _loglik
-from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Scratch,
-                                 Settings, pack)
+from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Flat,
+                                 Scratch, Settings, new_beam, new_scratch, pack)
 from deint_env.episode import Priors
 from deint_env.errors import NotApplicable, check
 from deint_env.params import Param, declare
@@ -33,7 +33,8 @@ _GAP_ESTIMATED = 1e-2
 # Work arrays of finished policies by shape, for the next reset: fresh ones cost their page faults anew
 # every episode (~0.3 ms for a 256-hypothesis start beam of 3 sources: 0.3 us a pulse of a 1000-pulse
 # episode, more than the act calls)
-_SPARE: dict[tuple[int, ...], list[tuple[Beam, Beam, Scratch]]] = {}
+_Work = tuple[tuple[Flat, Beam], tuple[Flat, Beam], tuple[Flat, Scratch]]  # the beams and scratch: buffers, views
+_SPARE: dict[tuple[int, ...], list[_Work]] = {}
 _SPARE_MAX = 2
 
 
@@ -152,7 +153,9 @@ class MHT:
         b = prior_block(Priors(n_labels=n, period=priors.period, phase=phase, period_std=priors.period_std,
                                phase_std=phase_std))
         self.prior = np.ascontiguousarray(np.stack(list(b), axis=-1))
-        self.cur, self.nxt, self.scratch = self._work_arrays()
+        self.look_max = max(self.look, self.look_start)  # the scratch's look-ahead depth
+        (self.cur_flat, self.cur), (self.nxt_flat, self.nxt), (self.w_flat, self.scratch) = self._work_arrays()
+        self.net_flat = FlatScorer.of(self.net)  # (here: a test may swap the scorer after construction)
         self.cur.blk[0] = self.prior
         self.size = 1
         self.zob = _zobrist(n)
@@ -213,29 +216,28 @@ class MHT:
         self.ended = False
         self.steps = 0
 
-    def _work_arrays(self) -> tuple[Beam, Beam, Scratch]:
+    def _work_arrays(self) -> _Work:
         """The two beams and the scratch for this episode: this policy's own or a finished one's of the same
         shape (`_SPARE`), cleared to what fresh ones hold, else fresh ones."""
         cap, n, ring = self.start_beam, self.n, self.nscan + 1
-        look, hidden = max(self.look, self.look_start), self.net.b1.shape[0]
+        look, hidden = self.look_max, self.net.b1.shape[0]
         key = (cap, n, ring, look, hidden)
         spare = _SPARE.get(key)
         if getattr(self, "work_key", None) == key:
-            work = self.cur, self.nxt, self.scratch
+            work = (self.cur_flat, self.cur), (self.nxt_flat, self.nxt), (self.w_flat, self.scratch)
         elif spare:
             work = spare.pop()
         else:
             self.work_key = key
             # per parent: up to two arrivals (each also with a period jump, `jump`) and a restart per source
             # (`step`), and the spurious hypothesis
-            return (Beam.empty(cap, n, ring), Beam.empty(cap, n, ring),
-                    Scratch.empty(cap * (5 * n + 1), n, look, hidden))
+            return new_beam(cap, n, ring), new_beam(cap, n, ring), new_scratch(cap * (5 * n + 1), n, look, hidden)
         self.work_key = key
-        for arrays in work:
-            for a in arrays:
-                a.fill(0)
-        work[0].last.fill(-1)
-        work[1].last.fill(-1)
+        for flat, _ in work:
+            flat.f.fill(0)
+            flat.i.fill(0)
+        work[0][1].last.fill(-1)
+        work[1][1].last.fill(-1)
         return work
 
     def __del__(self) -> None:
@@ -244,8 +246,8 @@ class MHT:
         if key is not None:
             spare = _SPARE.setdefault(key, [])
             # (a shallow copy of a policy shares its arrays: they are handed on once)
-            if len(spare) < _SPARE_MAX and not any(w[0] is self.cur for w in spare):
-                spare.append((self.cur, self.nxt, self.scratch))
+            if len(spare) < _SPARE_MAX and not any(w[0][1] is self.cur for w in spare):
+                spare.append(((self.cur_flat, self.cur), (self.nxt_flat, self.nxt), (self.w_flat, self.scratch)))
 
     def act(self, obs: dict[str, Any]) -> int:
         # runs once a step (twice a pulse at the default lag): kept lean, the work is in the driver
@@ -302,10 +304,12 @@ class MHT:
                 end = min(cfg.reserve + 1, int(np.searchsorted(self.toa[:self.n_seen], y0 + ahead, side="right")))
                 self._vet(end)
         self.k, self.size, swapped, self.n_labels = _run(
-            self.toa, self.n_seen, self.ended, self.k, self.size, self.cur, self.nxt, self.zob, self.prior,
-            self.scratch, self.settings, self.counts, self.labels, self.n_labels, self.net)
+            self.toa, self.n_seen, self.ended, self.k, self.size, *self.cur_flat, *self.nxt_flat, self.start_beam,
+            self.zob, self.prior, *self.w_flat, self.look_max, self.settings, self.counts, self.labels, self.n_labels,
+            *self.net_flat)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
+            self.cur_flat, self.nxt_flat = self.nxt_flat, self.cur_flat
 
     def _vet(self, end: int) -> None:
         """The prior-consistency test and the data-driven restart, or for priors that predict no first
@@ -392,12 +396,12 @@ class MHT:
         """The beam started from blocks `blk` run over the window `toa` (as if the stream ended there): its
         labels and its best hypothesis's final blocks."""
         n, ring, cap = self.n, self.nscan + 1, self.start_beam
-        cur, nxt = Beam.empty(cap, n, ring), Beam.empty(cap, n, ring)
+        (cur_flat, cur), (nxt_flat, nxt) = new_beam(cap, n, ring), new_beam(cap, n, ring)
         cur.blk[0] = blk
         cur.key[0] = self.cur.key[0]
         labels = np.zeros(toa.size, np.int64)
-        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, cur, nxt, self.zob, blk, self.scratch, self.settings,
-                                self.counts.copy(), labels, 0, self.net)
+        _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, *cur_flat, *nxt_flat, cap, self.zob, blk, *self.w_flat,
+                                self.look_max, self.settings, self.counts.copy(), labels, 0, *self.net_flat)
         return labels, (nxt if swapped else cur).blk[0].copy()
 
     def _rate_periods(self, toa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -77,6 +77,31 @@ class Scorer(NamedTuple):
                    np.zeros(1))
 
 
+class FlatScorer(NamedTuple):
+    """A `Scorer` in one float64 buffer, lo, hi, w1, b1, w2, b2 in turn (w1: rows x cols; b1 and w2: `hidden`):
+    one array for numba to unbox on each driver call, not six (`state.Flat`)."""
+
+    f: np.ndarray
+    rows: int
+    cols: int
+    hidden: int
+
+    @classmethod
+    def of(cls, net: Scorer) -> FlatScorer:
+        rows, cols = net.w1.shape
+        if net.lo.shape != (N_FEATURES,) or net.hi.shape != (N_FEATURES,) or net.b1.shape != net.w2.shape \
+                or net.b2.shape != (1,):
+            raise ValueError(f"not a scorer's shapes: {[a.shape for a in net]}")
+        return cls(np.concatenate([a.ravel() for a in net]).astype(np.float64), rows, cols, net.b1.shape[0])
+
+
+def scorer_views(f: np.ndarray, rows: int, cols: int, hidden: int) -> Scorer:
+    """The Scorer whose arrays are f's parts (`FlatScorer`)."""
+    w = 2 * N_FEATURES + rows * cols
+    return Scorer(f[:N_FEATURES], f[N_FEATURES:2 * N_FEATURES], f[2 * N_FEATURES:w].reshape((rows, cols)),
+                  f[w:w + hidden], f[w + hidden:w + 2 * hidden], f[w + 2 * hidden:w + 2 * hidden + 1])
+
+
 @njit(cache=True, nogil=True)
 def mlp(net, x, acc):
     """f(x) for one feature row (acc: (H,) work array)."""

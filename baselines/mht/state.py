@@ -48,12 +48,6 @@ class Beam(NamedTuple):
     label: np.ndarray
     missed: np.ndarray
 
-    @classmethod
-    def empty(cls, capacity: int, n: int, ring: int) -> Beam:
-        return cls(np.zeros((capacity, n, 5)), np.zeros((capacity, n), np.int64), np.full((capacity, n), -1, np.int64),
-                   np.zeros(capacity, np.uint64), np.zeros(capacity), np.zeros((capacity, n)), np.zeros(capacity),
-                   np.zeros((capacity, ring), np.int64), np.zeros((capacity, ring), np.int64))
-
 
 class Scratch(NamedTuple):
     """Per-pulse work arrays: the candidates (parent, source or -1, steps, score, rank, e, S, look-ahead;
@@ -80,15 +74,6 @@ class Scratch(NamedTuple):
     log_s: np.ndarray
     order: np.ndarray
     branch: np.ndarray
-
-    @classmethod
-    def empty(cls, candidates: int, n: int, look: int, hidden: int) -> Scratch:
-        c = candidates
-        return cls(np.zeros(c, np.int64), np.zeros(c, np.int64), np.zeros(c), np.zeros(c), np.zeros(c), np.zeros(c),
-                   np.zeros(c), np.zeros(c), np.zeros((5 * n + 1, N_FEATURES)), np.zeros((n, _CACHE), np.int64),
-                   np.zeros((n, _CACHE)), np.zeros((n, _CACHE)), np.zeros(n, np.int64),
-                   np.zeros(((look + 1) * (_BRANCH + 1) + 2, 8)), np.zeros((5, max(hidden, N_FEATURES))), np.zeros(c),
-                   np.zeros(c, np.int64), np.zeros(_BRANCH, np.int64))
 
 
 class Settings(NamedTuple):
@@ -134,3 +119,73 @@ SETTINGS = np.dtype((np.record, [(name, {float: np.float64, int: np.int64, bool:
 def pack(*rows: Settings) -> np.ndarray:
     """`rows` as an array of `SETTINGS` records (each row's fields by name, as numba's code reads them)."""
     return np.array([tuple(r) for r in rows], SETTINGS)
+
+
+# The beams and the scratch as flat buffers (the scorer: `scorer.FlatScorer`).  numba unboxes every array argument on every call
+# (~0.2 us each): as NamedTuples of arrays, the driver's two beams, scratch and scorer were 42 arrays, 11 us
+# an empty call -- half of mht's time at lag 3, where the driver runs once a pulse.  Each set now lives in
+# two buffers (float64, int64) that the driver views as the NamedTuples the kernels take (`beam_views`,
+# `scratch_views`, `scorer_views`: plain functions, compiled in kernels.py, run as they are by Python).
+
+
+class Flat(NamedTuple):
+    """A Beam's or the Scratch's arrays laid out in two buffers: f (float64), i (int64)."""
+
+    f: np.ndarray
+    i: np.ndarray
+
+
+def beam_views(f: np.ndarray, i: np.ndarray, cap: int, n: int, ring: int) -> Beam:
+    """The Beam of `cap` hypotheses, n sources and ring L whose arrays are f[:cap (6n + 2)] and
+    i[:cap (2n + 1 + 2L)] (`new_beam`)."""
+    a, r = cap * n, cap * ring
+    blk = f[:5 * a].reshape((cap, n, 5))
+    score = f[5 * a:5 * a + cap]
+    h = f[5 * a + cap:6 * a + cap].reshape((cap, n))
+    ahead = f[6 * a + cap:6 * a + 2 * cap]
+    arrivals = i[:a].reshape((cap, n))
+    last = i[a:2 * a].reshape((cap, n))
+    key = i[2 * a:2 * a + cap].view(np.uint64)
+    label = i[2 * a + cap:2 * a + cap + r].reshape((cap, ring))
+    missed = i[2 * a + cap + r:2 * a + cap + 2 * r].reshape((cap, ring))
+    return Beam(blk, arrivals, last, key, score, h, ahead, label, missed)
+
+
+def new_beam(cap: int, n: int, ring: int) -> tuple[Flat, Beam]:
+    """A fresh beam (zeros, no source's last pulse: -1): its buffers and their views."""
+    flat = Flat(np.zeros(cap * (6 * n + 2)), np.zeros(cap * (2 * n + 1 + 2 * ring), np.int64))
+    beam = beam_views(flat.f, flat.i, cap, n, ring)
+    beam.last.fill(-1)
+    return flat, beam
+
+
+def scratch_views(f: np.ndarray, i: np.ndarray, c: int, n: int, look: int, hidden: int) -> Scratch:
+    """The Scratch for c candidates, n sources, `look` arrivals looked ahead and a scorer's `hidden` units,
+    whose arrays are f and i (`new_scratch`)."""
+    steps, score, rank, e, s, h = f[:c], f[c:2 * c], f[2 * c:3 * c], f[3 * c:4 * c], f[4 * c:5 * c], f[5 * c:6 * c]
+    o = 6 * c
+    feat = f[o:o + (5 * n + 1) * N_FEATURES].reshape((5 * n + 1, N_FEATURES))
+    o += (5 * n + 1) * N_FEATURES
+    cache_steps = f[o:o + n * _CACHE].reshape((n, _CACHE))
+    cache_val = f[o + n * _CACHE:o + 2 * n * _CACHE].reshape((n, _CACHE))
+    o += 2 * n * _CACHE
+    rows = (look + 1) * (_BRANCH + 1) + 2  # the look-ahead's search stack
+    stack = f[o:o + rows * 8].reshape((rows, 8))
+    o += rows * 8
+    width = max(hidden, N_FEATURES)
+    work = f[o:o + 5 * width].reshape((5, width))
+    log_s = f[o + 5 * width:o + 5 * width + c]
+    parent, source, order = i[:c], i[c:2 * c], i[2 * c:3 * c]
+    cache_last = i[3 * c:3 * c + n * _CACHE].reshape((n, _CACHE))
+    o = 3 * c + n * _CACHE
+    used = i[o:o + n]
+    branch = i[o + n:o + n + _BRANCH]
+    return Scratch(parent, source, steps, score, rank, e, s, h, feat, cache_last, cache_steps, cache_val, used, stack,
+                   work, log_s, order, branch)
+
+
+def new_scratch(c: int, n: int, look: int, hidden: int) -> tuple[Flat, Scratch]:
+    """A fresh scratch: its buffers and their views."""
+    floats = 7 * c + (5 * n + 1) * N_FEATURES + 2 * n * _CACHE + 8 * ((look + 1) * (_BRANCH + 1) + 2) + 5 * max(hidden, N_FEATURES)
+    flat = Flat(np.zeros(floats), np.zeros(3 * c + n * _CACHE + n + _BRANCH, np.int64))
+    return flat, scratch_views(flat.f, flat.i, c, n, look, hidden)

@@ -75,7 +75,9 @@ def main() -> None:
     args = ap.parse_args()
     # SIGTERM as Ctrl-C: the child is killed (subprocess.run) and the worktrees removed (finally)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
-    policies, suites = [p for p in args.policies.split(",") if p] + args.policy, args.suites.split(",")
+    # (dict.fromkeys: a policy named by both --policies and --policy is played once)
+    policies = list(dict.fromkeys([p for p in args.policies.split(",") if p] + args.policy))
+    suites = args.suites.split(",")
 
     with tempfile.TemporaryDirectory(prefix="deint-commits-") as tmp:
         trees = {"before": worktree(args.before, Path(tmp)), "after": worktree(args.after, Path(tmp))}

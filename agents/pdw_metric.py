@@ -243,6 +243,7 @@ class Args:
     pool: int = 48  # simulated train episodes kept; one replaced every `refresh` steps
     refresh: int = 2
     learning_rate: float = 1e-3
+    schedule: str = "constant"  # or "cosine": the rate decays to 0 over the wall-clock budget
     tau: float = 0.1  # the contrastive loss's temperature
     d_model: int = 64
     heads: int = 4
@@ -253,6 +254,14 @@ class Args:
     val_seeds: int = 1  # first validation seeds of each 10^4-pulse blind scenario used while training
     val_window: int = 1024  # the labelling settings of the validations that pick the checkpoint (the
     val_min_cluster_size: int = 5  # shipped one's; the policy's defaults were chosen after, with it)
+
+
+def learning_rate(args: Args, done: float) -> float:
+    """The optimiser's rate when `done` (0-1) of the wall-clock budget is spent (the budget is time, not
+    steps, so the cosine decays over time)."""
+    if args.schedule == "cosine":
+        return 0.5 * args.learning_rate * (1.0 + math.cos(math.pi * min(1.0, max(0.0, done))))
+    return args.learning_rate
 
 
 def blind_entries() -> list[Any]:
@@ -280,6 +289,8 @@ def train(args: Args) -> dict[str, Any]:
     from deint_env.simulate import simulate
     from deint_env.suites import load_suite
 
+    if args.schedule not in ("constant", "cosine"):
+        raise DeintError(f"--schedule {args.schedule!r} is unknown: use constant or cosine")
     torch.manual_seed(args.seed)
     torch.set_num_threads(1)
     rng = np.random.default_rng(args.seed)
@@ -336,6 +347,8 @@ def train(args: Args) -> dict[str, Any]:
             lo = int(rng.integers(0, len(ep) - w + 1))
             xs.append(window_features(episode_pdws(ep, lo, lo + w)))
             ys.append(ep.source[lo:lo + w].astype(np.int64))
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(args, (time.perf_counter() - t0) / budget)
         z = net(torch.from_numpy(np.stack(xs)))
         loss = supcon_loss(z, torch.from_numpy(np.stack(ys)), args.tau)
         opt.zero_grad()

@@ -122,3 +122,17 @@ def test_it_separates_an_independent_generators_emitters():
     labels = play_pulses("pdw-metric", p)
     assert clustering_metrics(p.source, labels)["v_measure"] >= THRESHOLD
 
+
+
+def test_training_schedule():
+    """`--schedule cosine` decays the rate to 0 over the wall-clock budget; constant keeps it; an unknown
+    schedule is refused before anything is simulated."""
+    from agents.pdw_metric import Args, learning_rate, parse_args, train
+    from deint_env.errors import DeintError
+
+    cosine = parse_args(["--schedule", "cosine", "--learning-rate", "0.002"])
+    assert cosine.schedule == "cosine" and parse_args([]).schedule == "constant"
+    assert [learning_rate(cosine, d) for d in (0.0, 0.5, 1.0, 2.0)] == pytest.approx([0.002, 0.001, 0.0, 0.0])
+    assert learning_rate(Args(learning_rate=0.003), 0.9) == 0.003
+    with pytest.raises(DeintError, match="schedule 'linear' is unknown"):
+        train(Args(schedule="linear"))

@@ -19,12 +19,17 @@ from baselines.survivor import same_last
 
 @njit(cache=True, nogil=True)
 def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, interval_var, drift, log_q, log_1mq, st,
-            order):
+            order, dll, src):
     """The best log-likelihood of a track's next `look` arrivals after it took pulse k with the filtered
     block (t, tau, ptt, ptx, pxx): a small tree search over the buffered pulses in each arrival's gate
     (a hit: log(1 - q) + log N(e; 0, S), the KF updated (2.15); or a miss: log q, the KF coasted (2.8)).
     An arrival beyond the buffer ends the search (nothing known yet).  Depth-first with the explicit
-    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth); `order`: (_BRANCH,) work row."""
+    stack `st` (rows: t, tau, ptt, ptx, pxx, steps, total, depth); `order`: (_BRANCH,) work row.  With
+    descriptor likelihoods (`dll` not None: docs/mht.md, "Descriptor likelihoods") a hit on pulse j also
+    scores min(dll[j, src], 0): a pulse the track's emitter explains worse than the background counts against
+    the continuation, a better one counts as its TOA alone (the whole dll, ~+12 nats a hit on pdw-v0, made
+    a first pulse's 6-arrival look-ahead outweigh every later 2-arrival one: tracks called their own
+    pulses spurious to keep it).  So no hit scores more than without descriptors (the bound below)."""
     if look <= 0:
         return 0.0
     newest = toa[n_seen - 1]
@@ -78,13 +83,15 @@ def _future(toa, n_seen, k, t, tau, ptt, ptx, pxx, look, gate2, jitter_var, inte
                                                                                       e, s, jitter_var)
             st[top, 5] = 1.0
             st[top, 6] = total + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+            if dll is not None:  # (None: numba compiles the branch out)
+                st[top, 6] += min(dll[j, src], 0.0)
             st[top, 7] = depth + 1.0
             top += 1
     return best
 
 
 @njit(cache=True, nogil=True)
-def prior_ahead(toa, n_seen, c, cfg, log_q, log_1mq, w):
+def prior_ahead(toa, n_seen, c, cfg, log_q, log_1mq, w, dll=None):
     """The look-ahead of the tracks not started yet (hypothesis 0 of beam `c`, before the first pulse): each
     track's best first arrival and `look_start` arrivals after it among the buffered pulses, from its prior
     block (`_future` from before pulse 0).  A started track carries the look-ahead of its last update; a
@@ -92,14 +99,15 @@ def prior_ahead(toa, n_seen, c, cfg, log_q, log_1mq, w):
     (negative), ranked below the child calling its first pulse spurious, by the whole look-ahead: with the
     spurious rate at the unknown rate's prior mean (5 %), a dense scene's tracks of long period never
     started, their pulses all went spurious and the estimated rate ran away (issue #22).  With the prior's
-    look-ahead, starting on the track's own first pulse costs nothing more than its hit there."""
+    look-ahead, starting on the track's own first pulse costs nothing more than its hit there.  `dll`: the
+    descriptor log-likelihood ratios (`_run`; None: TOA only)."""
     total = 0.0
     for i in range(c.blk.shape[1]):
         b = c.blk[0, i]
         if c.arrivals[0, i] == 0:
             c.h[0, i] = _future(toa, n_seen, -1, b[PERIOD], b[TAU], b[P_TT], b[P_TX], b[P_XX], cfg.look_start + 1,
                                 cfg.gate2, cfg.jitter_var, cfg.interval_var, cfg.drift, log_q, log_1mq, w.stack,
-                                w.branch)
+                                w.branch, dll, i)
         total += c.h[0, i]
     c.ahead[0] = total
 
@@ -111,11 +119,13 @@ def prior_ahead(toa, n_seen, c, cfg, log_q, log_1mq, w):
 # repeats, fresh processes alternating with the unsplit code, which the Kalman and survivor helpers leave
 # within 1 % of the old hand-written step.
 @njit(cache=True, nogil=True)
-def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net, learned):
+def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1mq, log_rho, w, net, learned, dll=None):
     """Extend the beam `c` (size hypotheses) with pulse k into `x`; returns the new size.  Children are
     ranked by score + look-ahead (the sum of every track's look-ahead score), so an assignment whose
     track has no good continuation loses at once instead of a period later.  A learned scorer `net`
-    (`Scorer`; none: w1 has no rows) corrects every candidate's score if `learned`."""
+    (`Scorer`; none: w1 has no rows) corrects every candidate's score if `learned`.  `dll` (pulses, N): the
+    descriptor log-likelihood ratio a track taking a pulse adds (`_run`; None: TOA only, and numba compiles
+    the descriptor terms out: tested at run time, they cost mht 20-25 % of its time on core-v0)."""
     y = toa[k]
     n = c.blk.shape[1]
     ring = c.label.shape[1]
@@ -168,7 +178,7 @@ def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1m
                     u_t, u_tau, u_tt, u_tx, u_xx = kf_update_div(t, pred, ptt + d_tt, p_tx, s - jitter_var, e, s,
                                                                  jitter_var)
                     hv = _future(toa, n_seen, k, u_t, u_tau, u_tt, u_tx, u_xx, depth, gate2, jitter_var,
-                                 interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
+                                 interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch, dll, i)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps, hv
@@ -178,6 +188,8 @@ def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1m
                 w.steps[nc] = steps
                 ls = math.log(s)
                 w.score[nc] = c.score[b] + log_1mq + miss - 0.5 * (_LOG_2PI + ls + e * e / s)
+                if dll is not None:
+                    w.score[nc] += dll[k, i]
                 w.log_s[nc] = ls
                 w.h[nc] = hv
                 w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
@@ -201,7 +213,7 @@ def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1m
                         u_t, u_tau, u_tt, u_tx, u_xx = kf_update_div(t, pred, ptt + d_tt, p_tx, s - jitter_var, e, s,
                                                                      jitter_var)
                         hj = _future(toa, n_seen, k, u_t, u_tau, u_tt + qj, u_tx, u_xx, depth, gate2, jitter_var,
-                                     interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
+                                     interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch, dll, i)
                         if w.used[i] < _CACHE:
                             q = w.used[i]
                             w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = c.last[b, i], steps + 0.5, hj
@@ -233,7 +245,7 @@ def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1m
                 if not found:
                     rt, rtt = _restart_period(t, ptt, prior[i, PERIOD], prior[i, P_TT])
                     hv = _future(toa, n_seen, k, rt, y, rtt, 0.0, jitter_var, cfg.look_restart,
-                                 gate2, jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch)
+                                 gate2, jitter_var, interval_var, cfg.drift, log_q, log_1mq, w.stack, w.branch, dll, i)
                     if w.used[i] < _CACHE:
                         q = w.used[i]
                         w.cache_last[i, q], w.cache_steps[i, q], w.cache_val[i, q] = -2, -1.0, hv
@@ -242,6 +254,8 @@ def step(toa, n_seen, k, size, c, x, zob, prior, width, look, cfg, log_q, log_1m
                 w.source[nc] = i
                 w.steps[nc] = -near  # negative: a restart after `near` arrivals
                 w.score[nc] = c.score[b] + log_1mq + cfg.log_gap - math.log(prior[i, PERIOD])
+                if dll is not None:
+                    w.score[nc] += dll[k, i]
                 w.h[nc] = hv
                 w.rank[nc] = w.score[nc] + c.ahead[b] - c.h[b, i] + hv
                 nc += 1
@@ -413,14 +427,16 @@ _scorer_views = njit(cache=True, nogil=True)(scorer_views)
 
 @njit(cache=True, nogil=True)
 def _run(toa, n_seen, ended, k, size, cur_f, cur_i, nxt_f, nxt_i, cap, zob, prior, w_f, w_i, look, settings, counts,
-         labels, n_labels, net_f, net_rows, net_cols, net_hidden):
+         labels, n_labels, net_f, net_rows, net_cols, net_hidden, dll):
     """Process pulses k, k+1, ... while their look-ahead is buffered (or their decision is due, or
     the stream `ended`): extend the beam, decide pulse k - nscan from the best hypothesis and prune
     the rest (N-scan).  Decided labels go to labels[n_labels:].  Returns (k, size, swapped, n_labels):
     `swapped` when the beam now lives in `nxt`.  The beams (`cap` hypotheses), the scratch (its look-ahead
     depth `look`) and the scorer come as their flat buffers (`state.Flat`, `scorer.FlatScorer`: arrays, not
     NamedTuples, which numba types argument by argument on every call).  `settings`: `pack(cfg, fit)`, fit
-    the search while the misfit gate is closed."""
+    the search while the misfit gate is closed.  `dll`: (at least n_seen, N) descriptor log-likelihood ratios
+    of pulse k for track i (no columns: TOA only, and the kernels get None, compiled without the terms;
+    docs/mht.md, "Descriptor likelihoods")."""
     cfg, fit = settings[0], settings[1]
     n = prior.shape[0]
     ring = cfg.nscan + 1
@@ -450,15 +466,25 @@ def _run(toa, n_seen, ended, k, size, cur_f, cur_i, nxt_f, nxt_i, cap, zob, prio
         if k == 0:  # the pulses up to y + ahead (all buffered by now, whatever the batching)
             if cfg.initiate:
                 end = min(cfg.reserve + 1, np.searchsorted(toa[:n_seen], y + ahead, side="right"))
-                initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
+                if dll.shape[1] > 0:
+                    initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq, dll)
+                else:
+                    initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
             if cfg.prior_ahead:
-                prior_ahead(toa, n_seen, cur, cfg, log_q, log_1mq, w)
+                if dll.shape[1] > 0:
+                    prior_ahead(toa, n_seen, cur, cfg, log_q, log_1mq, w, dll)
+                else:
+                    prior_ahead(toa, n_seen, cur, cfg, log_q, log_1mq, w)
         if swapped:
             a, b = nxt, cur
         else:
             a, b = cur, nxt
-        size = step(toa, n_seen, k, size, a, b, zob, prior, width, c.look, c, log_q, log_1mq, log_rho, w, net,
-                     counts[_LEARNED] == 1)
+        if dll.shape[1] > 0:
+            size = step(toa, n_seen, k, size, a, b, zob, prior, width, c.look, c, log_q, log_1mq, log_rho, w, net,
+                        counts[_LEARNED] == 1, dll)
+        else:
+            size = step(toa, n_seen, k, size, a, b, zob, prior, width, c.look, c, log_q, log_1mq, log_rho, w, net,
+                        counts[_LEARNED] == 1)
         swapped = not swapped
         decided = k - cfg.nscan
         if decided >= 0:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -15,7 +15,7 @@ from baselines.mht.scorer import FlatScorer, Scorer
 from baselines.mht.start import _explained, _loglik
 from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Flat,
                                  Scratch, Settings, new_beam, new_scratch, pack)
-from deint_env.episode import Priors
+from deint_env.episode import DESCRIPTORS, Priors
 from deint_env.errors import NotApplicable, check
 from deint_env.params import Param, declare
 
@@ -28,6 +28,50 @@ _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies 
 # p_gap's floor when a rate is estimated (the priors leave it unknown, or `rates` estimate): a track lost in a
 # dense scene is then not read as a source that stopped (docs/mht.md, "Restart")
 _GAP_ESTIMATED = 1e-2
+# descriptor likelihoods (docs/mht.md, "Descriptor likelihoods"): the background a pulse's descriptor is
+# judged against spans the library's means +- _DESC_SPAN of their deviations (AoA: the whole circle); a
+# deviation is floored at _DESC_STD_REL of that span
+_DESC_SPAN, _DESC_STD_REL = 4.0, 1e-6
+_NO_DLL = np.zeros((0, 0))  # descriptors off: the driver's dll has no columns
+
+
+class Library(NamedTuple):
+    """The descriptors an emitter library gives (`descriptor_library`): their observation keys, per
+    descriptor and track the mean and deviation (D, N), per descriptor the background's log-density and
+    whether it is an angle (degrees, differences wrapped to [-180, 180))."""
+
+    names: tuple[str, ...]
+    mean: np.ndarray
+    std: np.ndarray
+    log_bg: np.ndarray
+    circular: np.ndarray
+
+
+def descriptor_library(priors: Priors) -> Library | None:
+    """The priors' emitter library as mht scores it (None: the priors give no descriptor).  A descriptor's
+    background (a pulse no track explains: spurious, or another emitter's) is uniform over the span of
+    the library's means +- 4 deviations, or 360 degrees for the AoA."""
+    names = tuple(d for d in DESCRIPTORS if getattr(priors, d) is not None and getattr(priors, f"{d}_std") is not None)
+    if not names:
+        return None
+    mean = np.array([np.asarray(getattr(priors, d), dtype=float) for d in names]).reshape(len(names), -1)
+    std = np.array([np.asarray(getattr(priors, f"{d}_std"), dtype=float) for d in names]).reshape(mean.shape)
+    circular = np.array([d == "aoa" for d in names])
+    width = np.where(circular, 360.0, np.max(mean + _DESC_SPAN * std, axis=1) - np.min(mean - _DESC_SPAN * std, axis=1))
+    width = np.maximum(width, np.finfo(float).tiny)
+    std = np.maximum(std, _DESC_STD_REL * width[:, None])
+    return Library(names, mean, std, -np.log(width), circular)
+
+
+def descriptor_llr(x: np.ndarray, lib: Library) -> np.ndarray:
+    """dll (M, N): for each of M pulses (x: (M, D), the library's descriptors in its order) and track, the
+    sum over descriptors of log N(x; mean, std) less the background's log-density.  A descriptor not
+    measured (not finite) adds 0."""
+    d = x[:, :, None] - lib.mean[None]
+    d = np.where(lib.circular[None, :, None], (d + 180.0) % 360.0 - 180.0, d)
+    z = d / lib.std[None]
+    term = -0.5 * (math.log(2.0 * math.pi) + z * z) - np.log(lib.std)[None] - lib.log_bg[None, :, None]
+    return np.sum(np.where(np.isfinite(term), term, 0.0), axis=1)
 
 
 # Work arrays of finished policies by shape, for the next reset: fresh ones cost their page faults anew
@@ -84,6 +128,8 @@ PARAMS = declare(
           "dead, look, look_restart, jump apply (0: from the start)", low=0),
     Param("wide_from", int, 0, "with misfit: from this many sources on, mht's own search before the gate opens "
           "(0: never)", low=0, high=_N),
+    Param("descriptors", bool, False, "score each pulse's descriptors (frequency, pulse width, AoA) against the priors' "
+          "emitter library too (needs one)"),
     internal=("scorer",),
 )
 
@@ -110,7 +156,9 @@ class MHT:
     arrivals judged `look_start` ahead, hits judged 2 ahead, no jumps); priors that state merging (a
     coincidence resolution, which the hand-written likelihood leaves out) have the scorer and those
     settings from the start.  `wide_from`: `per_source` and the margins then narrow only the open
-    gate's search."""
+    gate's search.  `descriptors` (docs/mht.md, "Descriptor likelihoods"): each pulse's frequency, pulse
+    width and AoA scored against the priors' emitter library (`descriptor_llr`) as well as its TOA;
+    priors without a library are not applicable.  Off, the labels are bit for bit those without it."""
 
     PARAMS = PARAMS
 
@@ -120,7 +168,7 @@ class MHT:
                  margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
                  jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, wide_from: int = 0,
-                 scorer: Scorer | None = None):
+                 descriptors: bool = False, scorer: Scorer | None = None):
         PARAMS.check(locals())
         check(nscan <= lag, "nscan", nscan, f"at most lag={lag}")
         check(look_restart is None or look_restart <= look_start, "look_restart", look_restart,
@@ -139,6 +187,7 @@ class MHT:
         self.jump_z = float(jump_z)
         self.misfit = float(misfit)
         self.wide_from = wide_from
+        self.descriptors = descriptors
         self.net = Scorer.off() if scorer is None else scorer
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -215,6 +264,24 @@ class MHT:
         self.called = 0  # pulses seen at the last driver call
         self.ended = False
         self.steps = 0
+        self._library(priors, info)
+
+    def _library(self, priors: Priors, info: dict[str, Any]) -> None:
+        """`descriptors`: the emitter library, the pulses' descriptors (`desc`, grown with `toa`) and their
+        log-likelihood ratios (`dll`: pulses, N; computed up to `dll_done` before each driver call)."""
+        self.names: tuple[str, ...] = ()
+        self.dll, self.dll_done = _NO_DLL, 0
+        if not self.descriptors:
+            return
+        lib = descriptor_library(priors)
+        if lib is None:
+            raise NotApplicable("mht:descriptors=true needs priors with an emitter library (descriptor means and "
+                                "spreads); these give none")
+        if info.get("has_descriptors") is False:
+            raise NotApplicable("mht:descriptors=true needs pulse descriptors; this scenario's observations carry none")
+        self.lib, self.names = lib, lib.names
+        self.desc = np.zeros((self.toa.size, len(lib.names)))
+        self.dll = np.zeros((self.toa.size, self.n))
 
     def _work_arrays(self) -> _Work:
         """The two beams and the scratch for this episode: this policy's own or a finished one's of the same
@@ -254,6 +321,10 @@ class MHT:
         if obs["valid"]:
             n = self.n_seen
             self.toa[n] = obs["toa"][0]
+            if self.names:
+                row = self.desc[n]
+                for j, name in enumerate(self.names):
+                    row[j] = obs[name][0]
             self.n_seen = n = n + 1
             if n >= self.wake:
                 self._wake()
@@ -276,6 +347,9 @@ class MHT:
         if n == self.toa.size:
             self.toa = np.concatenate([self.toa, np.zeros(n)])
             self.labels = np.concatenate([self.labels, np.zeros(n, np.int64)])
+            if self.names:
+                self.desc = np.concatenate([self.desc, np.zeros_like(self.desc)])
+                self.dll = np.concatenate([self.dll, np.zeros_like(self.dll)])
         if n - self.called >= self.batch or n - 1 - self.k >= self.reserve:
             self._run()
         self.wake = min(self.toa.size, self.called + self.batch, self.k + 1 + self.reserve)
@@ -294,6 +368,9 @@ class MHT:
 
     def _run(self) -> None:
         self.called = self.n_seen
+        if self.names and self.dll_done < self.n_seen:  # the new pulses' descriptor likelihoods
+            self.dll[self.dll_done:self.n_seen] = descriptor_llr(self.desc[self.dll_done:self.n_seen], self.lib)
+            self.dll_done = self.n_seen
         if not self.vetted:
             cfg, y0 = self.cfg, self.toa[0]
             ahead = cfg.horizon_start if y0 <= cfg.start_until else cfg.horizon
@@ -306,7 +383,7 @@ class MHT:
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, *self.cur_flat, *self.nxt_flat, self.start_beam,
             self.zob, self.prior, *self.w_flat, self.look_max, self.settings, self.counts, self.labels, self.n_labels,
-            *self.net_flat)
+            *self.net_flat, self.dll)
         if swapped:
             self.cur, self.nxt = self.nxt, self.cur
             self.cur_flat, self.nxt_flat = self.nxt_flat, self.cur_flat
@@ -325,7 +402,9 @@ class MHT:
         toa = self.toa[:end]
         log_q, log_1mq, _ = rates(cfg, self.counts)
         fitted = np.empty_like(self.prior)
-        explained, missed = _explained(toa, end, self.prior, cfg, log_q, log_1mq, self._looks(toa, self.prior), fitted)
+        dll = self.dll if self.names else None  # (None: compiled without the descriptor terms)
+        explained, missed = _explained(toa, end, self.prior, cfg, log_q, log_1mq, self._looks(toa, self.prior), fitted,
+                                       dll)
         self._window_rates(end, explained, missed)
         # the pulses the sources are not expected to explain: spurious ones, r per source pulse (an unknown
         # r the window's net excess of pulses: read as the weak prior's 5 %, it let a dense start's priors
@@ -337,7 +416,7 @@ class MHT:
         if n > _VET_MAX_SOURCES or end - explained <= allowed:
             return
         blk = self._fdp_start(toa)
-        again, missed = _explained(toa, end, blk, cfg, log_q, log_1mq, self._looks(toa, blk), fitted)
+        again, missed = _explained(toa, end, blk, cfg, log_q, log_1mq, self._looks(toa, blk), fitted, dll)
         # the restart must explain 10 % more of the window and half of what the priors left unexplained; the
         # tracks start from their chains over the window from FDP's estimates (what the test has just found:
         # a period FDP learnt early from wrong pulses is polished by the chain's KF)
@@ -401,7 +480,7 @@ class MHT:
         cur.key[0] = self.cur.key[0]
         labels = np.zeros(toa.size, np.int64)
         _, _, swapped, _ = _run(toa, toa.size, True, 0, 1, *cur_flat, *nxt_flat, cap, self.zob, blk, *self.w_flat,
-                                self.look_max, self.settings, self.counts.copy(), labels, 0, *self.net_flat)
+                                self.look_max, self.settings, self.counts.copy(), labels, 0, *self.net_flat, self.dll)
         return labels, (nxt if swapped else cur).blk[0].copy()
 
     def _rate_periods(self, toa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -13,13 +13,14 @@ from baselines.kalman_jit import drift_terms, kf_predict_steps, kf_update_div
 from baselines.mht.state import _INIT_BEAM, _INIT_BRANCH, _LOG_2PI, P_TT, P_TX, P_XX, PERIOD, TAU
 
 @njit(cache=True, nogil=True)
-def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
+def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit, dll, src):
     """Track initiation: the best log-likelihood of a track (prior block `blk`) whose first arrival is
     pulse j, over its first look + 1 arrivals among pulses 0..end-1 not `used` by tracks already
     started: a beam search (_INIT_BEAM partial chains, the _INIT_BRANCH nearest unused pulses and a
     miss per arrival; a hit log(1 - q) + log N(e; 0, S), a miss log q; an arrival beyond pulse end-1
     ends the chain).  The best chain's pulses go to `path` (-1: a miss, -2: beyond the buffer), its
-    final KF block to `fit`."""
+    final KF block to `fit`.  With descriptor likelihoods (`dll` not None) a hit on pulse jj also scores
+    dll[jj, src], src the track."""
     t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
     jv, iv = cfg.jitter_var, cfg.interval_var
     m_cap = _INIT_BEAM * (_INIT_BRANCH + 1)
@@ -48,6 +49,8 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
                 c_par[nc], c_j[nc] = m, j
                 e = toa[j] - pred
                 c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                if dll is not None:
+                    c_v[nc] += dll[j, src]
                 nc += 1
                 continue
             if pred + half > newest:  # nothing known yet: the chain ends as it is
@@ -73,6 +76,8 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
                 e = toa[jj] - pred
                 c_par[nc], c_j[nc] = m, jj
                 c_v[nc] = tot[m] + log_1mq - 0.5 * (_LOG_2PI + math.log(s) + e * e / s)
+                if dll is not None:
+                    c_v[nc] += dll[jj, src]
                 nc += 1
                 taken += 1
         order = np.argsort(-c_v[:nc], kind="mergesort")
@@ -109,7 +114,7 @@ def _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit):
 
 
 @njit(cache=True, nogil=True)
-def _best_start(toa, end, blk, look, cfg, log_q, log_1mq, used, path, fit):
+def _best_start(toa, end, blk, look, cfg, log_q, log_1mq, used, path, fit, dll, src):
     """The best first pulse of a track (prior block `blk`) among the unused pulses in its first
     arrival's gate, and its chain's log-likelihood ratio (-inf: none)."""
     t, tau, ptt, ptx, pxx = blk[PERIOD], blk[TAU], blk[P_TT], blk[P_TX], blk[P_XX]
@@ -120,7 +125,7 @@ def _best_start(toa, end, blk, look, cfg, log_q, log_1mq, used, path, fit):
     best, best_j = -np.inf, -1
     for j in range(lo, hi):
         if not used[j]:
-            v = _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit)
+            v = _chain(toa, end, j, blk, look, cfg, log_q, log_1mq, used, path, fit, dll, src)
             if v > best:
                 best, best_j = v, j
     return best, best_j
@@ -152,21 +157,21 @@ def _in_first_gate(blk, y, cfg):
 
 
 @njit(cache=True, nogil=True)
-def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py, fx, fy, js):
+def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py, fx, fy, js, dll, ix, iy):
     """Two tracks (prior blocks bx, by) started one after the other: x's chain from pulse jx, then y's
     from pulse jy among the pulses x's chain left (-1: the track's best first pulse, `_best_start`).
     Returns the chains' total log-likelihood (-inf: a track found no first pulse); their pulses go to
-    px, py, their fits to fx, fy and their first pulses to js."""
+    px, py, their fits to fx, fy and their first pulses to js (ix, iy: the tracks, for `dll`)."""
     if jx < 0:
-        jx = _best_start(toa, end, bx, look, cfg, log_q, log_1mq, used, px, fx)[1]
+        jx = _best_start(toa, end, bx, look, cfg, log_q, log_1mq, used, px, fx, dll, ix)[1]
         if jx < 0:
             return -np.inf
-    v = _chain(toa, end, jx, bx, look, cfg, log_q, log_1mq, used, px, fx)
+    v = _chain(toa, end, jx, bx, look, cfg, log_q, log_1mq, used, px, fx, dll, ix)
     _mark(px, used, True)
     if jy < 0:
-        jy = _best_start(toa, end, by, look, cfg, log_q, log_1mq, used, py, fy)[1]
+        jy = _best_start(toa, end, by, look, cfg, log_q, log_1mq, used, py, fy, dll, iy)[1]
     if jy >= 0:
-        v += _chain(toa, end, jy, by, look, cfg, log_q, log_1mq, used, py, fy)
+        v += _chain(toa, end, jy, by, look, cfg, log_q, log_1mq, used, py, fy, dll, iy)
     else:
         v = -np.inf
     _mark(px, used, False)
@@ -175,7 +180,7 @@ def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py
 
 
 @njit(cache=True, nogil=True)
-def initiate(toa, end, blk, cfg, log_q, log_1mq):
+def initiate(toa, end, blk, cfg, log_q, log_1mq, dll=None):
     """Joint track initiation on the first `end` pulses (a dense start puts many sources' first arrivals
     in each other's phase gates; judged one track at a time, a track takes a neighbour's pulse train as
     readily as its own).  Greedy, in order of prior period: each track's best pulse chain (`_chain`) is
@@ -192,7 +197,8 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq):
     gives the first track judged the train its prior fits best, not the pair's best assignment).  A
     started track's prior phase becomes its chain's first pulse (deviation sigma_w) and its period the
     chain's fit, so the beam starts it there.  Only tracks whose first arrival's gate is narrower than a
-    period take part; a track with no pulse train of its own (`_own_train`) is left to the beam."""
+    period take part; a track with no pulse train of its own (`_own_train`) is left to the beam.  `dll`: the
+    descriptor log-likelihood ratios each hit of a chain adds (`kernels._run`; None: TOA only)."""
     n = blk.shape[0]
     look = max(cfg.look_init, int(math.ceil((toa[end - 1] - toa[0]) / np.min(blk[:, PERIOD]))))
     used = np.zeros(end, np.bool_)
@@ -207,11 +213,11 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq):
                                 cfg.interval_var)[2]
         if not 2.0 * math.sqrt(cfg.gate2 * (p_xx + cfg.jitter_var)) < blk[i, PERIOD]:
             continue
-        j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit)[1]
+        j = _best_start(toa, end, blk[i], look, cfg, log_q, log_1mq, used, path, fit, dll, i)[1]
         if j < 0:
             continue
         first[i] = j
-        _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit)
+        _chain(toa, end, j, blk[i], look, cfg, log_q, log_1mq, used, path, fit, dll, i)
         if not _own_train(path):
             continue
         _mark(path, used, True)
@@ -240,11 +246,11 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq):
                     ja, jb = (fa, fb) if way < 2 else ((fb, fa) if way < 4 else (-1, -1))
                     if way % 2 == 0:
                         v = _start_two(toa, end, blk[a], blk[b], ja, jb, look, cfg, log_q, log_1mq, used, path,
-                                       path2, fit, fit2, js)
+                                       path2, fit, fit2, js, dll, a, b)
                         ja, jb = js[0], js[1]
                     else:
                         v = _start_two(toa, end, blk[b], blk[a], jb, ja, look, cfg, log_q, log_1mq, used, path2,
-                                       path, fit2, fit, js)
+                                       path, fit2, fit, js, dll, b, a)
                         ja, jb = js[1], js[0]
                     if v > best and (way < 2 or (_own_train(path) and _own_train(path2))):
                         best = v
@@ -264,12 +270,12 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq):
                 if not (started[a] and _in_first_gate(blk[b], toa[first[a]], cfg)):
                     continue
                 _mark(paths[a], used, False)
-                _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path, fit)
+                _chain(toa, end, first[a], blk[b], look, cfg, log_q, log_1mq, used, path, fit, dll, b)
                 if _own_train(path):
                     _mark(path, used, True)
-                    v, j = _best_start(toa, end, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
+                    v, j = _best_start(toa, end, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2, dll, a)
                     if j >= 0:
-                        _chain(toa, end, j, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2)
+                        _chain(toa, end, j, blk[a], look, cfg, log_q, log_1mq, used, path2, fit2, dll, a)
                     if j >= 0 and _own_train(path2):
                         started[b], first[b], paths[b], fits[b] = True, first[a], path, fit
                         first[a], paths[a], fits[a] = j, path2, fit2
@@ -294,13 +300,14 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq):
 
 
 @njit(cache=True, nogil=True)
-def _explained(toa, end, blk, cfg, log_q, log_1mq, looks, fitted):
+def _explained(toa, end, blk, cfg, log_q, log_1mq, looks, fitted, dll):
     """Prior-consistency test: the buffered pulses 0..end-1 the tracks (blocks `blk`) explain.  Track by
     track (in index order) its best pulse chain (`_best_start`, `looks[i]` arrivals: the whole window)
     among the pulses earlier tracks have not taken; its hits are taken.  Returns the pulses taken; a
     track whose chain is its own train (`_own_train`) gets in `fitted[i]` the block it starts from when
     restarted on it (as `initiate` starts a track: phase the chain's first pulse, period its fit),
-    the others `blk[i]`.  Also returns the arrivals the taken chains missed."""
+    the others `blk[i]`.  Also returns the arrivals the taken chains missed.  `dll`: the descriptor
+    log-likelihood ratios the chains' hits add (None: TOA only)."""
     n = blk.shape[0]
     used = np.zeros(end, np.bool_)
     missed = 0
@@ -308,10 +315,10 @@ def _explained(toa, end, blk, cfg, log_q, log_1mq, looks, fitted):
         fitted[i] = blk[i]
         path = np.empty(looks[i] + 1, np.int64)
         fit = np.empty(5)
-        v, j = _best_start(toa, end, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit)
+        v, j = _best_start(toa, end, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit, dll, i)
         if j < 0:
             continue
-        _chain(toa, end, j, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit)
+        _chain(toa, end, j, blk[i], looks[i], cfg, log_q, log_1mq, used, path, fit, dll, i)
         _mark(path, used, True)
         missed += np.sum(path == -1)
         if _own_train(path):

@@ -40,7 +40,7 @@ POLICIES = (
                description="blind, PDWs: a transformer trained by deep metric learning (supervised contrastive) on "
                            "pdw-v0's train seeds embeds each pulse of a 2048-pulse window; HDBSCAN clusters the "
                            "embeddings, emitters carried across windows as the pdw-* policies do (agents/checkpoints/"
-                           "pdw-metric-v0.safetensors; lag = window - 1; network=off: the scaled features clustered)"),
+                           "pdw-metric-v1.safetensors; lag = window - 1; network=off: the scaled features clustered)"),
     PolicyInfo("ppo", "agents.policy:ppo", kind="learned", ablation="network=off", modes=("anchored",), extra="rl",
                description="PPO (stable-baselines3 MLP) on the pulse features; trained on a two-source scenario"),
 )

@@ -262,6 +262,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("mean_pe", "mean P_e", higher_is_better=False, summary=True),
     Metric("v_measure", "V-measure", summary=True),
     Metric("ari", "ARI"),
+    Metric("ami", "AMI"),
     Metric("link_accuracy", "link accuracy"),
     Metric("period_rel_error", "period rel. error", ".2e", "median", higher_is_better=False),
     Metric("period_crlb_ratio", "period error / CRLB", ".3g", "median", higher_is_better=False),

@@ -57,6 +57,21 @@ def test_readme_block_shows_every_tied_leader():
     assert got == {"online": ["a", "b"], "offline": ["d"]}
 
 
+def test_readme_block_names_a_better_entry_that_plays_part_of_the_board():
+    """An entry left unranked for covering only part of the board (anchored-only on a board with blind
+    scenarios) is named beside the ranked leader when it scores more, with its coverage; an oracle never is."""
+    boards = _script("readme_boards")
+    board = {"rows": [
+        {"policy": "genie", "division": "online", "rank": None, "oracle": True, "coverage": 0.5, "score_mean": 1.0},
+        {"policy": "random", "division": "online", "rank": 1, "rank_label": "1", "score_mean": 0.0, "coverage": 1.0},
+        {"policy": "anchored", "division": "online", "rank": None, "score_mean": 0.4, "coverage": 0.5},
+        {"policy": "weak", "division": "online", "rank": None, "score_mean": 0.3, "coverage": 0.5},
+        {"policy": "mht", "division": "offline", "rank": None, "score_mean": 0.9, "coverage": 0.46}]}
+    assert boards.partial_leader(board, "online", 0.0)["policy"] == "anchored"
+    assert boards.partial_leader(board, "online", 0.5) is None
+    assert boards.partial_leader(board, "offline", -1.0)["policy"] == "mht"
+
+
 def test_generated_reference_pages_are_up_to_date():
     pages = _script("gen_pages")
     assert pages.stale() == [], "docs/generated/ is out of date: run python docs/scripts/gen_pages.py"

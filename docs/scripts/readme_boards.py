@@ -2,7 +2,8 @@
 
 Reads every `leaderboards/<suite>/leaderboard.json` and writes, between the README's markers
 `<!-- boards:start -->` and `<!-- boards:end -->`, one table row per board and latency division: the
-entry ranked first (every entry ranked "1=" when tied) with its mean normalised score and lag.
+entry ranked first (every entry ranked "1=" when tied) with its mean normalised score and lag, and beside
+it the best entry left unranked for playing only part of the board (coverage below 100 %), if it scores more.
 
     python docs/scripts/readme_boards.py            # rewrite README.md's block
     python docs/scripts/readme_boards.py --check    # exit 1 if README.md's block is not up to date
@@ -50,6 +51,17 @@ def leaders(board: dict[str, Any]) -> dict[str, list[dict[str, Any]]]:
     return out
 
 
+def partial_leader(board: dict[str, Any], division: str, above: float) -> dict[str, Any] | None:
+    """The best-scoring entry of `division` the board leaves unranked because it cannot play every episode
+    (coverage below 1: an anchored-only or blind-only policy), when it outscores `above` (the ranked
+    leader's mean): shown beside the leader, with its coverage, so that a board whose methods each play
+    part of it does not read as led by `random`."""
+    rows = [r for r in board.get("rows", []) if r.get("rank") is None and not r.get("oracle")
+            and r.get("division") == division and r.get("score_mean") is not None
+            and (r.get("coverage") or 0) < 1 and r["score_mean"] > above]
+    return max(rows, key=lambda r: r["score_mean"], default=None)
+
+
 def _lag(value: float | None) -> str:
     if value is None:
         return "-"
@@ -71,8 +83,15 @@ def block(root: Path = ROOT) -> str:
         suite = board.get("suite", path.parent.name)
         if not any("division" in r for r in board.get("rows", [])):
             derived.append(suite)
-        for division, top in leaders(board).items():
-            entries = "; ".join(_entry(r, len(top) > 1) for r in top)
+        ranked = leaders(board)
+        for division in DIVISIONS:
+            top = ranked.get(division, [])
+            partial = partial_leader(board, division, max((r["score_mean"] for r in top), default=-float("inf")))
+            if not top and partial is None:
+                continue
+            entries = "; ".join([_entry(r, len(top) > 1) for r in top] + (
+                [f"unranked, over {partial['coverage']:.0%} of the episodes: {_entry(partial, False)}"]
+                if partial is not None else []))
             lines.append(f"| [{suite}](leaderboards/{path.parent.name}/README.md) | {division} | {entries} |")
     if derived:
         lines += ["", f"Built before latency divisions (each entry's division derived from its lag, ranked by score "

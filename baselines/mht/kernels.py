@@ -11,7 +11,7 @@ from numba import njit
 from baselines.jit_cache import guard
 from baselines.kalman_jit import drift_terms, kf_predict_steps, kf_update, kf_update_div
 from baselines.mht.scorer import _learned, _pulse_terms, scorer_views
-from baselines.mht.start import _restart_period, initiate
+from baselines.mht.start import _restart_period
 from baselines.mht.state import (_BRANCH, _CACHE, _INSERTION, _LEARNED, _LOG_2PI, _PRIOR_MEAN, _PRIOR_WEIGHT, _Q_FLOOR,
                                  _R_FLOOR, _R_ZERO, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, beam_views, scratch_views)
 from baselines.survivor import same_last
@@ -463,13 +463,7 @@ def _run(toa, n_seen, ended, k, size, cur_f, cur_i, nxt_f, nxt_i, cap, zob, prio
             log_q, log_1mq, log_rho = rates(cfg, counts[_WINDOW:], toa[counts[_WINDOW + 3] - 1] - toa[0])
         else:
             log_q, log_1mq, log_rho = rates(cfg, counts, toa[n_labels - 1] - toa[0] if n_labels > 0 else 0.0)
-        if k == 0:  # the pulses up to y + ahead (all buffered by now, whatever the batching)
-            if cfg.initiate:
-                end = min(cfg.reserve + 1, np.searchsorted(toa[:n_seen], y + ahead, side="right"))
-                if dll.shape[1] > 0:
-                    initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq, dll)
-                else:
-                    initiate(toa, end, cur.blk[0], cfg, log_q, log_1mq)
+        if k == 0:  # (a joint start, `cfg.initiate`, was made before: `MHT._joint_start`)
             if cfg.prior_ahead:
                 if dll.shape[1] > 0:
                     prior_ahead(toa, n_seen, cur, cfg, log_q, log_1mq, w, dll)

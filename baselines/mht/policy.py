@@ -12,7 +12,7 @@ import numpy as np
 from baselines.kalman import DLMModel, prior_block
 from baselines.mht.kernels import _run, rates
 from baselines.mht.scorer import FlatScorer, Scorer
-from baselines.mht.start import _explained, _loglik
+from baselines.mht.start import _explained, _loglik, initiate
 from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Flat,
                                  Scratch, Settings, new_beam, new_scratch, pack)
 from deint_env.episode import DESCRIPTORS, Priors
@@ -28,6 +28,7 @@ _RATE_REL = 0.1  # relative deviation of a period from the relative frequencies 
 # p_gap's floor when a rate is estimated (the priors leave it unknown, or `rates` estimate): a track lost in a
 # dense scene is then not read as a source that stopped (docs/mht.md, "Restart")
 _GAP_ESTIMATED = 1e-2
+_JOINT_MISS = 0.05  # the joint start's second candidate: its chains' miss probability (`MHT._joint_start`)
 # descriptor likelihoods (docs/mht.md, "Descriptor likelihoods"): the background a pulse's descriptor is
 # judged against spans the library's means +- _DESC_SPAN of their deviations (AoA: the whole circle); a
 # deviation is floored at _DESC_STD_REL of that span
@@ -380,6 +381,8 @@ class MHT:
                 self.vetted = True
                 end = min(cfg.reserve + 1, int(np.searchsorted(self.toa[:self.n_seen], y0 + ahead, side="right")))
                 self._vet(end)
+                if self.cfg.initiate:
+                    self._joint_start(end)
         self.k, self.size, swapped, self.n_labels = _run(
             self.toa, self.n_seen, self.ended, self.k, self.size, *self.cur_flat, *self.nxt_flat, self.start_beam,
             self.zob, self.prior, *self.w_flat, self.look_max, self.settings, self.counts, self.labels, self.n_labels,
@@ -470,6 +473,34 @@ class MHT:
         self.prior[:] = informed
         self.cur.blk[0] = blk
         self.identify = rate, rate_var  # the tracks' identities are settled at the first label (`act`)
+
+    def _joint_start(self, end: int) -> None:
+        """A crowded start (`cfg.initiate`): the tracks started jointly (`initiate`) on the first `end`
+        pulses, at the chains' miss probability the driver would use and at least _JOINT_MISS, and the start
+        whose beam labels those pulses likelier under the priors (`_window`, `_loglik`) begins the beam.
+        On a clean channel the estimated q is ~1e-3; a chain whose pulse a track started before it has
+        taken then hops onto a neighbour's train rather than skip an arrival (16 sources,
+        tests/independent_gen.py: tracks started on each other's trains), while at a q of 5 % a fast
+        chain skips freely and others' trains are left to harmonics.  Neither is right on every file;
+        the window's likelihood tells which is (docs/mht.md, "Track initiation")."""
+        toa = np.ascontiguousarray(self.toa[:end])
+        cfg, counts = self.settings[0], self.counts
+        if counts[_WINDOW + 3] > 0:  # the rates the driver uses for pulse 0 (`kernels._run`)
+            log_q, log_1mq, log_rho = rates(cfg, counts[_WINDOW:], toa[counts[_WINDOW + 3] - 1] - toa[0])
+        else:
+            log_q, log_1mq, log_rho = rates(cfg, counts)
+        dll = self.dll[:end] if self.names else None
+        best, best_ll = self.prior, -np.inf
+        for floor in (0.0, _JOINT_MISS):
+            q = max(math.exp(log_q), floor)
+            blk = self.prior.copy()
+            initiate(toa, end, blk, cfg, math.log(q), math.log1p(-q), dll)
+            if best_ll > -np.inf and np.array_equal(blk, best):
+                continue
+            ll = _loglik(toa, self._window(toa, blk)[0], self.prior, cfg, log_q, log_1mq, log_rho)
+            if ll > best_ll:
+                best, best_ll = blk, ll
+        self.cur.blk[0] = best
 
     def _window(self, toa: np.ndarray, blk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The beam started from blocks `blk` run over the window `toa` (as if the stream ended there): its

@@ -157,6 +157,15 @@ def _in_first_gate(blk, y, cfg):
 
 
 @njit(cache=True, nogil=True)
+def _crossed(ba, bb, fa, fb):
+    """Each of two chains' fitted periods lies nearer the other track's prior period than its own (in the
+    priors' deviations): a chain started on its own first pulse that went on along the other's train."""
+    def z2(f, b):
+        return (f[PERIOD] - b[PERIOD]) ** 2 / b[P_TT]
+    return z2(fa, ba) > z2(fa, bb) and z2(fb, bb) > z2(fb, ba)
+
+
+@njit(cache=True, nogil=True)
 def _start_two(toa, end, bx, by, jx, jy, look, cfg, log_q, log_1mq, used, px, py, fx, fy, js, dll, ix, iy):
     """Two tracks (prior blocks bx, by) started one after the other: x's chain from pulse jx, then y's
     from pulse jy among the pulses x's chain left (-1: the track's best first pulse, `_best_start`).
@@ -191,7 +200,7 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq, dll=None):
     source was lost.  For the same reason every chain covers the whole buffered start (at least
     `look_init` arrivals): a fast track's chain of 16 arrivals left its later pulses free for a slow
     track's harmonic.  Then pairwise re-starts: two started tracks whose first pulses lie in each
-    other's gates are started anew in the best of six ways (`_start_two`: on their own first pulses, on
+    other's gates, or whose chains went on along each other's trains (`_crossed`), are started anew in the best of six ways (`_start_two`: on their own first pulses, on
     each other's, or each on its best pulse left, each with either chain chosen first -- two sources of
     near-equal period and phase: the chain chosen first may hop onto the other's train, and the greedy
     gives the first track judged the train its prior fits best, not the pair's best assignment).  A
@@ -231,8 +240,9 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq, dll=None):
         swapped = False
         for a in range(n):
             for b in range(a + 1, n):
-                if not (started[a] and started[b] and _in_first_gate(blk[a], toa[first[b]], cfg)
-                        and _in_first_gate(blk[b], toa[first[a]], cfg)):
+                if not (started[a] and started[b] and (_in_first_gate(blk[a], toa[first[b]], cfg)
+                                                       and _in_first_gate(blk[b], toa[first[a]], cfg)
+                                                       or _crossed(blk[a], blk[b], fits[a], fits[b]))):
                     continue
                 _mark(paths[a], used, False)
                 _mark(paths[b], used, False)

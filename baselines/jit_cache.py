@@ -8,6 +8,8 @@ a kernel module that compiles in code or constants of other files, hashes the so
 hash differs from the stamp stored beside the module's cache, empties the module's cache index before
 anything compiles.
 Compiled helpers are therefore imported by name from their module, never reached as `module.name`.
+Finding the dependencies parses sources (tens of ms per module at every start-up), so the stamp also
+records them with the hash of the module's own source: while neither changed, `guard` only hashes files.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import ast
 import hashlib
 import importlib.util
+import json
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -54,6 +57,11 @@ def _holds_kernels(name: str) -> bool:
 
 def dependencies(name: str, path: Path) -> list[Path]:
     """The source files whose change makes module `name`'s cached kernels stale, besides its own."""
+    return sorted(set(_dependencies(name, path).values()))
+
+
+def _dependencies(name: str, path: Path) -> dict[str, Path]:
+    """Module name -> source file of each of `dependencies`."""
     seen: dict[str, Path] = {}
     todo = [(name, path)]
     while todo:
@@ -68,7 +76,7 @@ def dependencies(name: str, path: Path) -> list[Path]:
             seen[dep] = src
             if _holds_kernels(dep):  # its kernels' own callees are compiled into ours too
                 todo.append((dep, src))
-    return sorted(set(seen.values()))
+    return seen
 
 
 def digest(paths: list[Path]) -> str:
@@ -88,17 +96,24 @@ def guard(namespace: dict[str, Any]) -> bool:
         return False
     name, path = namespace["__name__"], Path(namespace["__file__"])
     stamp = Path(cached[0]._cache.cache_path) / f"{path.stem}.deps-sha256"
-    want = digest(dependencies(name, path))
-    try:
-        if stamp.read_text() == want:
+    try:  # {"module": own source's hash, "deps": the dependencies' module names, "sha256": their sources' hash}
+        recorded = json.loads(stamp.read_text())
+        files = [_source(dep) for dep in recorded["deps"]]
+        # the dependencies follow from the module's source and theirs: both unchanged, nothing to parse
+        if None not in files and digest([path]) == recorded["module"] and \
+                digest(sorted(set(files))) == recorded["sha256"]:
             return False
-    except OSError:
-        pass
-    for k in cached:
-        k._cache.flush()
+    except (OSError, ValueError, KeyError, TypeError, ImportError):  # no stamp, an unreadable one, a lost module
+        recorded = {}
+    deps = _dependencies(name, path)
+    want = digest(sorted(set(deps.values())))
+    flushed = want != recorded.get("sha256")
+    if flushed:
+        for k in cached:
+            k._cache.flush()
     try:
         stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(want)
+        stamp.write_text(json.dumps({"module": digest([path]), "deps": sorted(deps), "sha256": want}))
     except OSError:  # a read-only cache: numba then recompiles in memory anyway
         pass
-    return True
+    return flushed

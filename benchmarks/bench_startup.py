@@ -9,8 +9,11 @@ busy machine is the CPU time stretched by the other load):
    written as a challenge file (their descriptors); `tree` on that core-v0 scenario cut to its limit of
    20 pulses (it cannot label 1000).  Cold: a fresh numba cache (NUMBA_CACHE_DIR a new temporary
    folder: every kernel the policy calls is compiled); warm: the median of --repeats runs on the cache
-   the cold run filled.  The `notice` column says whether the run printed deint's "compiling ..." line
-   (it should, cold, for a policy with numba kernels, and never warm).
+   the cold run filled.  "Warm" means numba's cache and Python's bytecode cache are both filled: the
+   child processes run without PYTHONDONTWRITEBYTECODE (removed from their environment if this shell
+   sets it), so they write and reuse .pyc files as a user's install does, and every figure follows one
+   untimed run.  The `notice` column says whether the run printed deint's "compiling ..." line (it
+   should, cold, for a policy with numba kernels, and never warm).
 3. For scale, the floor any numba-compiled policy pays: a fresh process importing numba and calling one
    trivial kernel from a warm cache (numba's import, its BLAS check importing scipy.linalg, and the set-up
    of its code generator on the first cached load).
@@ -44,19 +47,24 @@ BLIND_SCENARIO = "blind-v0/blind-n3to3-jitter0.1"
 PDW_SCENARIO = "pdw-v0/pdw-staring-n5-blind"  # cut to 1000 pulses, written as a challenge (HDF5) file
 TARGET = 1.0  # seconds, warm
 DEINT = shutil.which("deint", path=str(Path(sys.executable).parent)) or shutil.which("deint")
+# The children's environment: bytecode is written and reused, as in a user's install (a shell that sets
+# PYTHONDONTWRITEBYTECODE would make every run recompile deint's sources)
+CHILD_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 
 
 def timed(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float, subprocess.CompletedProcess]:
-    """(wall s, CPU s, the finished process) of one fresh process."""
+    """(wall s, CPU s, the finished process) of one fresh process (environment `env`, else CHILD_ENV)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    out = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env or CHILD_ENV)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), out
 
 
 def median_of(cmd: list[str], repeats: int, env: dict[str, str] | None = None) -> tuple[float, float, list]:
+    """Medians of `repeats` timed runs after one untimed run (which fills the bytecode cache)."""
+    subprocess.run(cmd, capture_output=True, env=env or CHILD_ENV)
     runs = [timed(cmd, env) for _ in range(repeats)]
     return statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs), [r[2] for r in runs]
 
@@ -73,7 +81,7 @@ def simulate_files(folder: Path) -> dict[str, tuple[str, str, str]]:
         pulses, priors, true = (str(folder / f"{kind}{suffix}")
                                 for suffix in (".h5" if kind == "pdw" else ".csv", ".json", "-true.json"))
         subprocess.run([DEINT, "simulate", scenario, "--seed", "0", "-o", pulses, "--priors-out", priors,
-                        "--true-priors-out", true], check=True, capture_output=True)
+                        "--true-priors-out", true], check=True, capture_output=True, env=CHILD_ENV)
         files[kind] = (pulses, priors, true)
     return files
 
@@ -116,8 +124,8 @@ def main() -> None:
             "import numba\n\n@numba.njit(cache=True)\ndef one(x):\n    return x + 1.0\n")
         cmd = [sys.executable, "-c",
                f"import sys; sys.path.insert(0, {tmp!r}); import floor_kernel; floor_kernel.one(1.0)"]
-        subprocess.run(cmd, check=True, env=dict(os.environ, NUMBA_CACHE_DIR=tmp))  # fills the cache
-        wall, cpu, _ = median_of(cmd, args.repeats, dict(os.environ, NUMBA_CACHE_DIR=tmp))
+        subprocess.run(cmd, check=True, env=dict(CHILD_ENV, NUMBA_CACHE_DIR=tmp))  # fills the cache
+        wall, cpu, _ = median_of(cmd, args.repeats, dict(CHILD_ENV, NUMBA_CACHE_DIR=tmp))
         print(f"{'numba floor: one cached kernel':<40} {wall:6.2f} s ({cpu:.2f} s CPU)")
 
     wanted = set(args.policies.split(",")) if args.policies else None
@@ -133,11 +141,10 @@ def main() -> None:
                 skipped.append(f"{info.name} ({info.kind}: needs {', '.join(info.required)}=...)")
                 continue
             cmd, what = made
-            if args.no_cold:  # numba's cache as it is, filled by one untimed run if it is not yet
+            if args.no_cold:  # numba's cache as it is, filled by median_of's untimed run if it is not yet
                 env, cold = None, None
-                subprocess.run(cmd, capture_output=True)
             else:
-                env = dict(os.environ, NUMBA_CACHE_DIR=str(folder / f"numba-{info.name}"))
+                env = dict(CHILD_ENV, NUMBA_CACHE_DIR=str(folder / f"numba-{info.name}"))
                 cold = timed(cmd, env)
             wall, cpu, procs = median_of(cmd, args.repeats, env)
             failed = next((p for p in ([cold[2]] if cold else []) + procs if p.returncode != 0), None)

@@ -11,18 +11,22 @@ from deint_env.registration import env_ids, register_envs
 from deint_env.scenario import DescriptorSpec, Modulation, PriorSpec, Range, ReceiverSpec, ScenarioSpec, SourceSpec
 from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import list_suites, load_suite, resolve_scenario
-from deint_env.version import __version__
 
 register_envs()
 
 
 def __getattr__(name: str):
-    """`evaluate` and `Evaluation` load on first use: they bring the token features, which `deint --help`
-    and a plain `import deint_env` do not need (start-up time, benchmarks/bench_startup.py)."""
+    """`evaluate` and `Evaluation` load on first use (they bring the token features), and so does
+    `__version__` (read from the installed metadata by importlib.metadata): neither `deint --help` nor
+    `deint label` nor a plain `import deint_env` needs them (start-up time, benchmarks/bench_startup.py)."""
     if name in ("evaluate", "Evaluation"):
         from deint_env import evaluation
 
         return getattr(evaluation, name)
+    if name == "__version__":
+        from deint_env.version import __version__
+
+        return __version__
     raise AttributeError(f"module 'deint_env' has no attribute {name!r}")
 
 __all__ = [

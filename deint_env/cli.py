@@ -41,7 +41,6 @@ from deint_env.cli_import import _add_import_sb3
 from deint_env.cli_plot import _add_plot
 from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_paths, _Parser, _policy_inputs, _run_policies,
                                 _status, read_label_file)
-from deint_env.results import json_ready  # not from runner, which imports every part of a run
 
 # ---------------------------------------------------------------------------------------------------
 # deint simulate
@@ -240,8 +239,8 @@ def _compile_notice(spec: str) -> Iterator[None]:
 
 
 def cmd_label(args: argparse.Namespace) -> int:
+    from deint_env.play import play  # not from runner, which imports every part of a run
     from deint_env.policies import check_policy_seed, is_oracle
-    from deint_env.runner import play
 
     _check_paths({"PULSES": args.pulses, "--priors": args.priors, **_policy_inputs([args.policy])},
                  {"-o": args.output})
@@ -308,6 +307,7 @@ def _score_tdc(args: argparse.Namespace) -> dict[str, Any]:
 
 def cmd_score(args: argparse.Namespace) -> int:
     from deint_env.metrics import label_metrics
+    from deint_env.results import json_ready
 
     if tdc.is_tdc_path(args.truth):  # TDC truth: emitter ids without priors, always scored blind
         return _print_metrics(args, json_ready(_score_tdc(args)))
@@ -384,6 +384,7 @@ def _add_run(sub) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from deint_env.results import json_ready
     from deint_env.runner import evaluate, format_table, read_records, resolve_target, summarise
     from deint_env.suites import list_suites, load_suite
 
@@ -685,11 +686,24 @@ SUBCOMMANDS: list[Callable[[Any], None]] = [_add_simulate, _add_label, _add_scor
                                             _add_dataset, _add_import_sb3, _add_tdc, _add_plot]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from deint_env import __version__
+class _VersionAction(argparse.Action):
+    """`--version`, as argparse's "version" action prints it, reading the installed version only when asked
+    (importlib.metadata: start-up time of every other command)."""
 
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="show program's version number and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from deint_env.version import __version__
+
+        print(f"deint-bench {__version__}")
+        parser.exit()
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="deint", description="deint-bench: pulse-train deinterleaving benchmark.")
-    parser.add_argument("--version", action="version", version=f"deint-bench {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for add in SUBCOMMANDS:
         add(sub)

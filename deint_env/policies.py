@@ -30,7 +30,6 @@ import math
 import re
 import weakref
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -154,7 +153,8 @@ class PolicyInfo:
 
 
 _REGISTRY: dict[str, PolicyInfo] = {}
-_loaded = False
+_loaded = False  # every provider loaded, the entry points' too
+_builtins_loaded = False  # the BUILTIN_PROVIDERS loaded
 
 
 def _add(info: PolicyInfo) -> None:
@@ -172,6 +172,8 @@ def register_policy(name: str, factory: Callable[..., Policy] | str, **metadata:
 
 def providers() -> dict[str, str]:
     """Provider name -> "module:attribute": the entry points of GROUP, and the built-in ones."""
+    from importlib.metadata import entry_points  # here: reading the metadata costs every `deint` start-up
+
     found = {ep.name: ep.value for ep in entry_points(group=GROUP)}
     for name, value in BUILTIN_PROVIDERS.items():
         if found.setdefault(name, value) != value:
@@ -195,12 +197,22 @@ def _load_provider(name: str, value: str) -> None:
         _add(PolicyInfo(**{**info.__dict__, "provider": name}))
 
 
+def _load_builtin_providers() -> None:
+    global _builtins_loaded
+    if not _builtins_loaded:
+        _builtins_loaded = True
+        for name, value in sorted(BUILTIN_PROVIDERS.items()):
+            _load_provider(name, value)
+
+
 def _load_providers() -> None:
     global _loaded
     if not _loaded:
         _loaded = True
-        for name, value in sorted(providers().items(), key=lambda kv: (kv[0] not in BUILTIN_PROVIDERS, kv[0])):
-            _load_provider(name, value)
+        _load_builtin_providers()
+        for name, value in sorted(providers().items()):
+            if name not in BUILTIN_PROVIDERS:
+                _load_provider(name, value)
 
 
 def list_policies() -> list[PolicyInfo]:
@@ -209,7 +221,12 @@ def list_policies() -> list[PolicyInfo]:
 
 
 def policy_info(name: str) -> PolicyInfo:
-    _load_providers()
+    """The registered policy `name`.  A shipped policy is found without reading the installed entry points
+    (start-up time); a clash of a third party's name with it is reported by `list_policies`."""
+    if name not in _REGISTRY:
+        _load_builtin_providers()
+    if name not in _REGISTRY:
+        _load_providers()
     if name not in _REGISTRY:
         raise DeintError(f"policy {name!r} is unknown; known policies: {', '.join(sorted(_REGISTRY))}")
     return _REGISTRY[name]

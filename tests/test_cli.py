@@ -224,7 +224,7 @@ def test_interrupted_label_keeps_the_old_output(capsys, tmp_path, simulated, mon
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("deint_env.runner.play", interrupted)
+    monkeypatch.setattr("deint_env.play.play", interrupted)  # where `deint label` takes it from
     before = open("l.csv").read()
     code, out, err = deint(capsys, "label", "p.csv", "--policy", "random", "--priors", "pr.json", "-o", "l.csv")
     assert code == 130 and err == "deint: interrupted\n"

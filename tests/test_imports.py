@@ -143,6 +143,27 @@ def test_labelling_imports_only_what_the_policy_needs(tmp_path):
     assert "numba" in compiled and not {"sklearn", "torch"} & {m.split(".")[0] for m in compiled}
 
 
+def test_labelling_loads_neither_the_runner_nor_the_installed_metadata(tmp_path):
+    """`deint label` plays through `deint_env.play`, without the runner's process pool, progress bar and
+    results files, and finds a shipped policy without reading the installed metadata (importlib.metadata:
+    the entry points, read only for a name the shipped providers lack, and the version, read for
+    `--version`).  `import deint_env` reads no metadata either, yet `deint_env.__version__` is there.
+    (What the bare interpreter already holds, e.g. through a .pth file, is not counted.)"""
+    bare = loaded_after("pass", tmp_path)
+    mods = loaded_after("from deint_env.cli import main\n"
+                        "assert main(['simulate', 'core-v0/core-n2-spread4-jitter0.05', '--seed', '0', '-o', 'p.csv', "
+                        "'--priors-out', 'p.json']) == 0\n"
+                        "assert main(['label', 'p.csv', '--priors', 'p.json', '--policy', 'random', "
+                        "'-o', 'l.csv']) == 0",
+                        tmp_path)
+    unwanted = {"deint_env.runner", "deint_env.results", "importlib.metadata", "tqdm", "concurrent.futures"} - bare
+    assert "deint_env.play" in mods and not unwanted & mods, sorted(unwanted & mods)
+    plain = loaded_after("import deint_env\nassert deint_env.__version__", tmp_path)
+    assert "importlib.metadata" in plain  # read on first use of __version__
+    if "importlib.metadata" not in bare:
+        assert "importlib.metadata" not in loaded_after("import deint_env", tmp_path)
+
+
 def test_the_command_defers_numpy_modules_it_never_uses(tmp_path):
     """`deint label` with a compiled policy imports scipy.linalg through numba, whose array-API shim
     touches numpy.f2py and numpy.testing; the command leaves them unexecuted (lazy) yet usable."""

@@ -157,3 +157,26 @@ def test_guard_recompiles_a_cached_kernel_when_a_file_it_compiles_in_changes(tmp
     assert list((tmp_path / "__pycache__").glob("main.kernel-*.nbi"))  # really cached
     assert run(1.0) == "2.0"
     assert run(5.0) == "6.0"
+
+
+def test_guard_parses_no_source_while_nothing_changed(tmp_path):
+    """Finding the dependencies parses sources (start-up time): a run whose module and dependencies are
+    those the stamp recorded only hashes them; a changed dependency is parsed for again."""
+    (tmp_path / "main.py").write_text(textwrap.dedent(GUARDED))
+    dep = tmp_path / "dep.py"
+    no_parsing = ("import baselines.jit_cache as jit_cache\n"
+                  "def refused(*args):\n"
+                  "    raise SystemExit('parsed')\n"
+                  "jit_cache._imported = refused\n"
+                  "import main\n")
+
+    def run(value: float, code: str | None = None) -> subprocess.CompletedProcess:
+        dep.write_text(f"from numba import njit\n\n\n@njit(inline='always')\ndef helper(x):\n    return x + {value}\n")
+        return subprocess.run([sys.executable] + (["-c", code] if code else ["main.py"]), cwd=tmp_path,
+                              capture_output=True, text=True)
+
+    assert run(1.0).stdout.strip() == "2.0"  # writes the stamp
+    unchanged = run(1.0, no_parsing)
+    assert unchanged.returncode == 0 and unchanged.stdout.strip() == "2.0", unchanged.stderr[-500:]
+    assert run(5.0, no_parsing).stderr.strip().endswith("parsed")
+    assert run(5.0).stdout.strip() == "6.0"

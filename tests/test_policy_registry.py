@@ -46,6 +46,7 @@ def fresh_registry(monkeypatch):
     """An empty registry that loads its providers again on first use."""
     monkeypatch.setattr(policies, "_REGISTRY", {})
     monkeypatch.setattr(policies, "_loaded", False)
+    monkeypatch.setattr(policies, "_builtins_loaded", False)
 
 
 def fake_distribution(root: Path, entry: str, module: str = PLUGIN) -> None:
@@ -82,6 +83,23 @@ def test_a_plugin_cannot_take_a_builtin_name(tmp_path, monkeypatch, fresh_regist
     monkeypatch.delitem(sys.modules, "x_policies", raising=False)
     with pytest.raises(DeintError, match="policy name 'fdp' is registered twice: by baselines .* and by x"):
         list_policies()
+
+
+def test_a_shipped_policy_is_found_without_reading_the_entry_points(monkeypatch, fresh_registry):
+    """Reading the installed metadata costs every `deint` start-up: a shipped name needs only the built-in
+    providers."""
+    def no_metadata():
+        raise AssertionError("entry points read for a shipped policy")
+
+    monkeypatch.setattr(policies, "providers", no_metadata)
+    assert policies.policy_info("fdp").provider == "baselines"
+
+
+def test_another_name_reads_the_entry_points(tmp_path, monkeypatch, fresh_registry):
+    fake_distribution(tmp_path, "x = x_policies:POLICIES")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "x_policies", raising=False)
+    assert policies.policy_info("x-const").provider == "x"
 
 
 @pytest.mark.parametrize("entry, module, expected", [

@@ -200,7 +200,8 @@ def initiate(toa, end, blk, cfg, log_q, log_1mq, dll=None):
     source was lost.  For the same reason every chain covers the whole buffered start (at least
     `look_init` arrivals): a fast track's chain of 16 arrivals left its later pulses free for a slow
     track's harmonic.  Then pairwise re-starts: two started tracks whose first pulses lie in each
-    other's gates, or whose chains went on along each other's trains (`_crossed`), are started anew in the best of six ways (`_start_two`: on their own first pulses, on
+    other's gates, or whose chains went on along each other's trains (`_crossed`), are started anew in
+    the best of six ways (`_start_two`: on their own first pulses, on
     each other's, or each on its best pulse left, each with either chain chosen first -- two sources of
     near-equal period and phase: the chain chosen first may hop onto the other's train, and the greedy
     gives the first track judged the train its prior fits best, not the pair's best assignment).  A

@@ -419,6 +419,15 @@ def rates(cfg, counts, span=0.0):
     return math.log(q), math.log1p(-q), math.log(r * cfg.pulse_rate)
 
 
+@njit(cache=True, nogil=True)
+def decision_rates(cfg, counts, toa, n_labels):
+    """`rates` while the next pulse to decide is n_labels: from the buffered start's chains' counts until
+    the decisions cover it (`MHT._window_rates`), then from the decided labels."""
+    if n_labels < counts[_WINDOW + 3]:
+        return rates(cfg, counts[_WINDOW:], toa[counts[_WINDOW + 3] - 1] - toa[0])
+    return rates(cfg, counts, toa[n_labels - 1] - toa[0] if n_labels > 0 else 0.0)
+
+
 # the views of the flat work buffers (state.Flat, scorer.FlatScorer), made inside the driver
 _beam_views = njit(cache=True, nogil=True)(beam_views)
 _scratch_views = njit(cache=True, nogil=True)(scratch_views)
@@ -459,10 +468,7 @@ def _run(toa, n_seen, ended, k, size, cur_f, cur_i, nxt_f, nxt_i, cap, zob, prio
             width = cfg.start_beam
         if not ended and n_seen - 1 - k < cfg.reserve and newest < y + ahead:
             break
-        if n_labels < counts[_WINDOW + 3]:  # decisions do not cover the buffered start yet: its chains' counts
-            log_q, log_1mq, log_rho = rates(cfg, counts[_WINDOW:], toa[counts[_WINDOW + 3] - 1] - toa[0])
-        else:
-            log_q, log_1mq, log_rho = rates(cfg, counts, toa[n_labels - 1] - toa[0] if n_labels > 0 else 0.0)
+        log_q, log_1mq, log_rho = decision_rates(cfg, counts, toa, n_labels)
         if k == 0:  # (a joint start, `cfg.initiate`, was made before: `MHT._joint_start`)
             if cfg.prior_ahead:
                 if dll.shape[1] > 0:

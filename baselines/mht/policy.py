@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from baselines.kalman import DLMModel, prior_block
-from baselines.mht.kernels import _run, rates
+from baselines.mht.kernels import _run, decision_rates, rates
 from baselines.mht.scorer import FlatScorer, Scorer
 from baselines.mht.start import _explained, _loglik, initiate
 from baselines.mht.state import (_DEAD, _HASH_BITS, _JUMP_P, _LOOK, _WINDOW, P_TT, P_TX, P_XX, PERIOD, TAU, Beam, Flat,
@@ -484,11 +484,8 @@ class MHT:
         chain skips freely and others' trains are left to harmonics.  Neither is right on every file;
         the window's likelihood tells which is (docs/mht.md, "Track initiation")."""
         toa = np.ascontiguousarray(self.toa[:end])
-        cfg, counts = self.settings[0], self.counts
-        if counts[_WINDOW + 3] > 0:  # the rates the driver uses for pulse 0 (`kernels._run`)
-            log_q, log_1mq, log_rho = rates(cfg, counts[_WINDOW:], toa[counts[_WINDOW + 3] - 1] - toa[0])
-        else:
-            log_q, log_1mq, log_rho = rates(cfg, counts)
+        cfg = self.settings[0]
+        log_q, log_1mq, log_rho = decision_rates(cfg, self.counts, toa, 0)  # what the driver uses for pulse 0
         dll = self.dll[:end] if self.names else None
         best, best_ll = self.prior, -np.inf
         for floor in (0.0, _JOINT_MISS):

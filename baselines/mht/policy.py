@@ -108,8 +108,10 @@ PARAMS = declare(
     Param("batch", int, 64, "pulses buffered per call of the compiled driver (labels do not depend on it)", low=1,
           high=_N),
     Param("dead", int, _DEAD, "arrivals a track must have missed in a row before it may restart", low=1, high=_N),
-    Param("dense", float, 8.0, "start tracks jointly when the first arrivals' gates hold this many pulses on "
-          "average (0: whenever the phases are known)", low=0),
+    Param("dense", float, 3.0, "try joint starts when the first arrivals' gates hold this many pulses on average "
+          "(0: whenever the phases are known)", low=0),
+    Param("crowded", float, 8.0, "from this many pulses a gate on, the beam's own start is no longer a candidate",
+          low=0),
     Param("look_init", int, 16, "periods of the longest source the joint start buffers (arrivals per chain it "
           "judges)", low=1, high=_N),
     Param("margin", float, math.inf, "children more than this many nats below the best are dropped (inf: the fixed "
@@ -165,7 +167,7 @@ class MHT:
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = _LOOK,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = _DEAD, dense: float = 8.0, look_init: int = 16, margin: float = math.inf,
+                 dead: int = _DEAD, dense: float = 3.0, crowded: float = 8.0, look_init: int = 16, margin: float = math.inf,
                  margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
                  jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, wide_from: int = 0,
@@ -179,7 +181,7 @@ class MHT:
         self.look_start, self.look, self.dead = look_start, look, dead
         self.look_restart = look_start if look_restart is None else look_restart
         self.gate, self.p_gap, self.rates, self.batch = float(gate), float(p_gap), rates, batch
-        self.dense, self.look_init = float(dense), look_init
+        self.dense, self.crowded, self.look_init = float(dense), float(crowded), look_init
         self.margin = float(margin)
         self.margin_per_source = float(margin_per_source)
         self.per_source = float(per_source)
@@ -214,14 +216,16 @@ class MHT:
         t_max = float(np.max(priors.period))
         stated = self.rates == "priors"
         # a dense start: the first arrivals' gates hold `dense` pulses or more on average (the sources'
-        # pulse rate times the gate's width), so tracks are started jointly (`initiate`) -- when every
-        # track can take part (its first gate narrower than its period: a track whose phase is unknown
-        # would compete for the pulses outside the joint assignment)
+        # pulse rate times the gate's width), so joint starts (`initiate`) are tried -- when every track
+        # can take part (its first gate narrower than its period: a track whose phase is unknown would
+        # compete for the pulses outside the joint assignment); below `crowded` the beam's own start is
+        # one of the candidates (`_joint_start`)
         p = self.prior
         first_s = p[:, P_XX] + 2.0 * p[:, P_TX] + p[:, P_TT] + model.interval_var + model.jitter_var
         width = 2.0 * self.gate * np.sqrt(first_s)
-        initiate = (bool(np.all(width < p[:, PERIOD]))
-                    and float(np.mean(width)) * float(np.sum(1.0 / priors.period)) >= self.dense)
+        held = float(np.mean(width)) * float(np.sum(1.0 / priors.period))
+        initiate = bool(np.all(width < p[:, PERIOD])) and held >= self.dense
+        self.own_start = held < self.crowded
         known_q = float(priors.missing_prob) if stated else math.nan  # NaN: estimated online
         known_r = float(priors.spurious_rate) if stated else math.nan
         estimated = math.isnan(known_q) or math.isnan(known_r)
@@ -475,29 +479,31 @@ class MHT:
         self.identify = rate, rate_var  # the tracks' identities are settled at the first label (`act`)
 
     def _joint_start(self, end: int) -> None:
-        """A crowded start (`cfg.initiate`): the tracks started jointly (`initiate`) on the first `end`
-        pulses, at the chains' miss probability the driver would use and at least _JOINT_MISS, and the start
-        whose beam labels those pulses likelier under the priors (`_window`, `_loglik`) begins the beam.
-        On a clean channel the estimated q is ~1e-3; a chain whose pulse a track started before it has
-        taken then hops onto a neighbour's train rather than skip an arrival (16 sources,
-        tests/independent_gen.py: tracks started on each other's trains), while at a q of 5 % a fast
-        chain skips freely and others' trains are left to harmonics.  Neither is right on every file;
-        the window's likelihood tells which is (docs/mht.md, "Track initiation")."""
+        """A dense start (`cfg.initiate`): the tracks started jointly (`initiate`) on the first `end` pulses, at
+        the chains' miss probability the driver would use and at least _JOINT_MISS, and (below `crowded`) the
+        beam's own start from the priors; the start whose beam labels those pulses likeliest under the priors
+        (`_window`, `_loglik`) begins the beam.  On a clean channel the estimated q is ~1e-3; a chain whose
+        pulse a track started before it has taken then hops onto a neighbour's train rather than skip an
+        arrival (16 sources, tests/independent_gen.py: tracks started on each other's trains), while at a q
+        of 5 % a fast chain skips freely and others' trains are left to harmonics; the beam's own start, in
+        turn, lets a slow track take a faster source's harmonic among a few sources' first pulses (8 sources:
+        a period-99 track on a 51.6 train's every other pulse).  None is right on every file; the window's
+        likelihood tells which is (docs/mht.md, "Track initiation").  In a crowded start the own start is
+        left out: its window can be likelier while the episode goes worse (scale-v0, 16 sources)."""
         toa = np.ascontiguousarray(self.toa[:end])
         cfg = self.settings[0]
         log_q, log_1mq, log_rho = decision_rates(cfg, self.counts, toa, 0)  # what the driver uses for pulse 0
         dll = self.dll[:end] if self.names else None
-        best, best_ll = self.prior, -np.inf
+        starts = [self.prior] if self.own_start else []
         for floor in (0.0, _JOINT_MISS):
             q = max(math.exp(log_q), floor)
             blk = self.prior.copy()
             initiate(toa, end, blk, cfg, math.log(q), math.log1p(-q), dll)
-            if best_ll > -np.inf and np.array_equal(blk, best):
-                continue
-            ll = _loglik(toa, self._window(toa, blk)[0], self.prior, cfg, log_q, log_1mq, log_rho)
-            if ll > best_ll:
-                best, best_ll = blk, ll
-        self.cur.blk[0] = best
+            if not any(np.array_equal(blk, b) for b in starts):
+                starts.append(blk)
+        ll = [_loglik(toa, self._window(toa, blk)[0], self.prior, cfg, log_q, log_1mq, log_rho)
+              for blk in starts] if len(starts) > 1 else [0.0]
+        self.cur.blk[0] = starts[int(np.argmax(ll))]  # the first of equals: the own start, then the lower q
 
     def _window(self, toa: np.ndarray, blk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The beam started from blocks `blk` run over the window `toa` (as if the stream ended there): its

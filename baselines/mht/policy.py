@@ -141,13 +141,13 @@ class MHT:
     """Policy `mht` (docs/mht.md).  Parameters: `PARAMS` (one line each; `deint policies mht`).
 
     Notes beyond those lines.  `lag`: pulses are buffered so the initiation look-ahead sees `look`
-    periods of the longest source, but never longer than lag - nscan pulses.  `dense`: tracks are
-    started jointly (`initiate`) when every track's phase is known to within a period and the first
-    arrivals' gates hold this many pulses on average: 32 sources of scale-v0 hold ~21, 16 sources 8-9,
-    16 sources of periods spread over [12, 160] (tests/independent_gen.py) 10-13, core-v0 at most ~6,
-    where the beam's own start is as good (joint starts there: -0.005 +- 0.006 on core-v0's validation
-    seeds).  Below 12 the beam's start let slow tracks take a faster source's harmonic in the crowded
-    first gates (tests/test_mht_dense.py), hence 8.  `margin`: an adaptive beam, cheaper
+    periods of the longest source, but never longer than lag - nscan pulses.  `dense`: joint starts
+    (`initiate`) are tried when every track's phase is known to within a period and the first arrivals'
+    gates hold this many pulses on average (32 sources of scale-v0 hold ~21, 16 sources 8-9, 16 sources
+    of periods spread over [12, 160] (tests/independent_gen.py) 10-13, core-v0 at most ~6); below
+    `crowded` the beam's own start competes with them (`_joint_start`), since neither alone is right on
+    every file (tests/test_mht_dense.py; 3 and 8 chosen on core-v0's validation seeds and generator seeds
+    101-130).  `margin`: an adaptive beam, cheaper
     where one hypothesis leads clearly; `margin_per_source`: a hypothesis's score sums over its tracks,
     so more sources spread the children's scores wider; `per_source` is rounded up: few sources leave
     fewer ambiguities to carry.  `drift` (`drift_terms`): 0 is MK94's DLM; it lets tracks of near-equal
@@ -167,8 +167,8 @@ class MHT:
 
     def __init__(self, beam: int = 32, start_beam: int = 256, nscan: int = 24, look_start: int = 6, look: int = _LOOK,
                  lag: int = 1024, gate: float = 4.0, p_gap: float = 1e-6, rates: str = "priors", batch: int = 64,
-                 dead: int = _DEAD, dense: float = 3.0, crowded: float = 8.0, look_init: int = 16, margin: float = math.inf,
-                 margin_per_source: float = 0.0,
+                 dead: int = _DEAD, dense: float = 3.0, crowded: float = 8.0, look_init: int = 16,
+                 margin: float = math.inf, margin_per_source: float = 0.0,
                  per_source: float = math.inf, look_restart: int | None = None, drift: float = 0.0,
                  jump: float = 0.0, jump_z: float = 0.0, misfit: float = 0.0, wide_from: int = 0,
                  descriptors: bool = False, scorer: Scorer | None = None):

@@ -257,20 +257,28 @@ class PathSearch:
         self.steps = 0
         self._m = m
         self._mixing = bool((self.arrays.same_family & ~np.eye(m, dtype=bool)).any())  # any IMM family
+        self._stay = (1 - self.switch) * np.eye(m)  # `_mix`'s constant terms
+        self._tiny = np.eye(m) * 1e-300
 
     # ---- the filter steps ---------------------------------------------------------------------------
     def _advance(self, mask: np.ndarray) -> None:
         """Every model of the (hypothesis, source) pairs in `mask` (H, N) predicts its next emission."""
-        if not mask.any():
-            return
+        if mask.any():
+            self._advance_pairs(*np.nonzero(mask))
+
+    def _advance_pairs(self, h: np.ndarray, i: np.ndarray) -> None:
+        """`_advance` of the distinct pairs (h[k], i[k]).  The search's arrays belong to it alone (each
+        pulse's `take` makes fresh ones), so they are updated in place."""
+        pred = self._predict(h, i, LinearBlock(self.state.x[h, i], self.state.p[h, i]))
+        self.state.x[h, i], self.state.p[h, i] = pred
+
+    def _predict(self, h: np.ndarray, i: np.ndarray, b: LinearBlock) -> LinearBlock:
+        """The next emission of every model of the distinct pairs (h[k], i[k]), whose states are b
+        (K, M, ...); their emission counts advance."""
         a = self.arrays
-        h, i = np.nonzero(mask)
-        f = a.transition(self.count)[h, i]  # only the pairs that advance
-        pred = linear_predict(LinearBlock(self.state.x[h, i], self.state.p[h, i]), f, a.q[i], a.c[i])
-        x, p = self.state.x.copy(), self.state.p.copy()
-        x[h, i], p[h, i] = pred.x, pred.p
-        self.state = LinearBlock(x, p)
-        self.count = self.count + mask
+        f = a.transition_of(i, self.count[h, i])
+        self.count[h, i] += 1
+        return linear_predict(b, f, a.q[i], a.c[i])
 
     def _best_model(self) -> np.ndarray:
         return np.argmax(self.logw, axis=2)  # (H, N)
@@ -279,10 +287,11 @@ class PathSearch:
         """MK94 VI-C-3 (`kalman.overdue` on each source's most probable model): sources whose next
         emission is overdue at y predict through it without a measurement, at -log p_miss each."""
         for _ in range(_MAX_COAST):
-            best = self._best_model()[..., None]
-            x = np.take_along_axis(self.state.x, best[..., None], axis=2)[:, :, 0]  # (H, N, D+1)
-            var = np.take_along_axis(self.state.p[..., TAU, TAU], best, axis=2)[:, :, 0]
-            phi = np.take_along_axis(self.arrays.regressor(self.count), best[..., None], axis=2)[:, :, 0]
+            best = self._best_model()
+            hh, nn = np.arange(best.shape[0])[:, None], np.arange(self.n)
+            x = self.state.x[hh, nn, best]  # (H, N, D+1)
+            var = self.state.p[hh, nn, best, TAU, TAU]
+            phi = self.arrays.phi(nn, best, self.count)
             pri = np.einsum("hnd,hnd->hn", phi, x[..., 1:])
             late = y - x[..., TAU] > self.gate * np.sqrt(var + self.r) + 0.5 * pri
             if self.miss_test.any():  # or one missed emission explains y better than none (dokf's (4.1),
@@ -301,13 +310,11 @@ class PathSearch:
                 return
             self.cost = self.cost + self.miss_cost * late.sum(axis=1)
             self._advance(late)
-            self.missed = self.missed + late
+            self.missed += late
             lost = late & (self.missed > self.reset_after)
             if lost.any():  # a dropout (or a late start): open the arrival up to a whole PRI (as dokf)
-                p = self.state.p.copy()
                 floor = (pri[lost] ** 2 / 12.0)[:, None]
-                p[lost, :, TAU, TAU] = np.maximum(p[lost, :, TAU, TAU], floor)
-                self.state = LinearBlock(self.state.x, p)
+                self.state.p[lost, :, TAU, TAU] = np.maximum(self.state.p[lost, :, TAU, TAU], floor)
 
     def _jump_lost(self, y: float) -> None:
         """A random-level source silent beyond its longest scored run (a dropout, or a late start) is
@@ -370,10 +377,11 @@ class PathSearch:
         pick = pick[np.argsort(flat[pick], kind="stable")]
         h, j = np.divmod(pick, ext.shape[1])
         self.cost = flat[pick]
+        # fancy indexing copies: from here on the survivors' arrays are the search's own, updated in place
         self.state = self.state.take(h)
-        self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h].copy()
+        self.count, self.logw, self.first = self.count[h], self.logw[h], self.first[h]
         self.alive, self.evidence, self.taken = self.alive[h], self.evidence[h], self.taken[h]
-        self.missed, self.last = self.missed[h].copy(), self.last[h].copy()
+        self.missed, self.last = self.missed[h], self.last[h]
         self.history = np.concatenate([self.history[h, 1:], j[:, None]], axis=1)
         self.jumps.take(h)
         took = j < self.n
@@ -383,16 +391,13 @@ class PathSearch:
             rows, src = np.nonzero(took)[0], j[took]
             sub = LinearBlock(self.state.x[rows, src], self.state.p[rows, src])
             upd = linear_update(sub, e[h[rows], src], s[h[rows], src], TAU, self.r)
-            x, p = self.state.x.copy(), self.state.p.copy()
-            x[rows, src], p[rows, src] = upd.x, upd.p
             for jj, i in enumerate(self.jumps.index):  # random-level sources: along the likeliest run
-                r_i = rows[src == i]
-                if r_i.size:
+                at = src == i
+                if at.any():
+                    r_i = rows[at]
                     new = self.jumps.update(jj, r_i, jump_scores[jj][h[r_i]],
-                                            LinearBlock(self.state.x[r_i, i, 0], self.state.p[r_i, i, 0]), y,
-                                            self.r, self.interval_var)
-                    x[r_i, i, 0], p[r_i, i, 0] = new.x, new.p
-            self.state = LinearBlock(x, p)
+                                            LinearBlock(sub.x[at, 0], sub.p[at, 0]), y, self.r, self.interval_var)
+                    upd.x[at, 0], upd.p[at, 0] = new.x, new.p
             # model probabilities: Bayes on the pulse, then the switching mix (IMM's Markov step)
             self._identify(rows, src, ll[h[rows], src])
             alive = self.alive[rows, src]
@@ -400,16 +405,21 @@ class PathSearch:
             w -= w.max(axis=1, keepdims=True)
             w -= np.log(np.exp(w).sum(axis=1, keepdims=True))
             if self.switch > 0 and self._mixing:
-                self._mix(rows, src, w, alive)
+                upd = self._mix(src, w, alive, upd)
                 w = np.logaddexp(math.log1p(-self.switch) + w, math.log(self.switch) + _uniform_log(alive))
-            self.logw = self.logw.copy()
             self.logw[rows, src] = w
             self.first[rows, src] = np.where(np.isnan(self.first[rows, src]), y, self.first[rows, src])
             self.missed[rows, src] = 0
             self.last[rows, src] = y
-            mask = np.zeros(took.shape + (self.n,), dtype=bool)
-            mask[rows, src] = True
-            self._advance(mask & ~self.jump_src)  # a random-level source's state stays at its last emission
+            # then each model predicts the source's next emission, but a random-level source's state
+            # stays at its last emission; the pairs' states are written back once, at the end
+            moves = ~self.jump_src[src]
+            if moves.all():
+                upd = self._predict(rows, src, upd)
+            elif moves.any():
+                pred = self._predict(rows[moves], src[moves], LinearBlock(upd.x[moves], upd.p[moves]))
+                upd.x[moves], upd.p[moves] = pred
+            self.state.x[rows, src], self.state.p[rows, src] = upd
 
     # ---- blind mode: tracks born from the pulses -----------------------------------------------------
     def _blind_costs(self, ext: np.ndarray, y: float) -> np.ndarray:
@@ -469,39 +479,43 @@ class PathSearch:
         pulses (several cycles of any simulated modulation) the models more than `margin` nats behind
         the best leave its bank for good.  A steady source then keeps no broad model with which it
         could take over an agile source's pulses (or hand its own over)."""
-        self.evidence = self.evidence.copy()
         self.evidence[rows, src] += np.where(self.alive[rows, src], ll, 0.0)
-        self.taken = self.taken.copy()
         self.taken[rows, src] += 1
         due = self.taken[rows, src] == self.identify
         if self.identify and due.any():
             r, i = rows[due], src[due]
             ev = np.where(self.alive[r, i], self.evidence[r, i], -np.inf)
-            self.alive = self.alive.copy()
             self.alive[r, i] &= ev >= ev.max(axis=1, keepdims=True) - self.margin
-            self.logw = self.logw.copy()
             self.logw[r, i] = np.where(self.alive[r, i], self.logw[r, i], -np.inf)
 
-    def _mix(self, rows: np.ndarray, src: np.ndarray, logw: np.ndarray, alive: np.ndarray) -> None:
+    def _mix(self, src: np.ndarray, logw: np.ndarray, alive: np.ndarray, b: LinearBlock) -> LinearBlock:
         """IMM's interaction step (Blom & Bar-Shalom) within each model family: model j restarts from
-        the mix of the family's states weighted by p_ij mu_i, with p = (1 - switch) I + switch U."""
+        the mix of the family's states weighted by p_ij mu_i, with p = (1 - switch) I + switch U.  b:
+        the states (R, M, ...) of sources `src`; returns the mixed states."""
         mu = np.exp(logw)  # (R, M)
         valid = alive
-        trans = (1 - self.switch) * np.eye(self._m) + self.switch * valid[:, None, :] / valid.sum(axis=1)[:, None, None]
+        trans = self._stay + self.switch * valid[:, None, :] / valid.sum(axis=1)[:, None, None]
         wij = np.where(self.arrays.same_family[src], trans * mu[:, :, None], 0.0)  # (R, i, j)
-        if not (wij.sum(axis=1) > 0).all():
-            wij = wij + np.eye(self._m) * 1e-300
-        wij /= wij.sum(axis=1, keepdims=True)
-        x, p = self.state.x[rows, src], self.state.p[rows, src]  # (R, M, D+1[, D+1])
+        total = wij.sum(axis=1, keepdims=True)
+        if not (total > 0).all():
+            wij = wij + self._tiny
+            total = wij.sum(axis=1, keepdims=True)
+        wij /= total
+        x, p = b  # (R, M, D+1[, D+1])
         r, m, d = x.shape
         wt = np.swapaxes(wij, 1, 2)  # (R, j, i)
         x0 = wt @ x  # mixed means
-        p0 = np.empty_like(p)
-        for j in range(m):  # sum_i w_ij (P_i + dx dx'), dx = x_i - x0_j: positive by construction
-            dx = x - x0[:, j:j + 1]
-            spread = (p + dx[..., :, None] * dx[..., None, :]).reshape(r, m, d * d)
-            p0[:, j] = (wt[:, j:j + 1] @ spread).reshape(r, d, d)
-        self.state.x[rows, src], self.state.p[rows, src] = x0, p0
+        # sum_i w_ij (P_i + dx dx'), dx = x_i - x0_j: positive by construction.  Every j at once, each
+        # j's product the same (1, M) @ (M, d^2) as one j at a time; the outer products dx dx' are taken
+        # with the state's axis first, where numpy runs long loops over the (R, j, i) pairs rather than
+        # one loop of d per pair, then transposed into place.
+        dx = np.empty((d, r, m, m))  # (D+1, R, j, i)
+        np.subtract(np.moveaxis(x, 2, 0)[:, :, None, :], np.moveaxis(x0, 2, 0)[:, :, :, None], out=dx)
+        dx = dx.reshape(d, -1)
+        spread = np.ascontiguousarray((dx[:, None] * dx[None]).reshape(d * d, -1).T).reshape(r, m, m, d * d)
+        spread += p.reshape(r, 1, m, d * d)
+        p0 = (wt[:, :, None] @ spread).reshape(r, m, d, d)
+        return LinearBlock(x0, p0)
 
     # ---- the policy protocol -----------------------------------------------------------------------
     def act(self, obs: dict[str, Any]) -> int:

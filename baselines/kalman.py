@@ -203,6 +203,13 @@ def linear_update(b: LinearBlock, e: np.ndarray, s: np.ndarray, index: int, r: f
     symmetric and positive when a prior variance is huge (an unknown phase)."""
     k = b.p[..., :, index] / s[..., None]
     x = b.x + k * e[..., None]
-    a = np.eye(b.x.shape[-1]) - k[..., :, None] * np.eye(b.x.shape[-1])[index]  # I - K H
+    d = b.x.shape[-1]
+    if np.isfinite(k).all():
+        # I - K H is I less K in column `index`: a copy and one column instead of a broadcast product per
+        # state, the same bits while K is finite (K H's other columns are zeros); renewal-ml's hot path
+        a = np.broadcast_to(np.eye(d), b.p.shape).copy()
+        a[..., :, index] -= k
+    else:
+        a = np.eye(d) - k[..., :, None] * np.eye(d)[index]
     p = a @ b.p @ np.swapaxes(a, -1, -2) + r * k[..., :, None] * k[..., None, :]
     return LinearBlock(x, p)

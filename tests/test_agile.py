@@ -120,6 +120,29 @@ def test_linear_block_is_the_dlm_block_for_a_constant_pri():
     assert lin.x[0, 0, 1] == pytest.approx(float(b.period[0]), abs=1e-9)
 
 
+def test_linear_update_is_joseph_form_bit_for_bit():
+    """`linear_update` builds I - K H by subtracting K from one column of I; the written-out product
+    I - K e_index' (computed here) must give the same bits, also for states of infinite variance (K not
+    finite: the product's path) and for gains of either sign (-0.0 terms)."""
+    rng = np.random.default_rng(3)
+    for trial in range(50):
+        d = int(rng.integers(2, 6))
+        a = rng.normal(size=(4, 3, d, d))
+        p = a @ np.swapaxes(a, -1, -2) * rng.uniform(0.01, 100.0)
+        if trial % 5 == 0:
+            p[0, 1, :, :] = np.inf
+        b = LinearBlock(rng.normal(size=(4, 3, d)), p)
+        index = int(rng.integers(d))
+        e, s = rng.normal(size=(4, 3)), p[..., index, index] + 0.3
+        with np.errstate(invalid="ignore"):  # inf / inf: the non-finite gains
+            got = linear_update(b, e, s, index, 0.3)
+            k = p[..., :, index] / s[..., None]
+            i_kh = np.eye(d) - k[..., :, None] * np.eye(d)[index]
+            want_p = i_kh @ p @ np.swapaxes(i_kh, -1, -2) + 0.3 * k[..., :, None] * k[..., None, :]
+        assert got.x.tobytes() == (b.x + k * e[..., None]).tobytes()
+        assert got.p.tobytes() == want_p.tobytes()
+
+
 @pytest.mark.parametrize("kind", sorted(AGILE))
 def test_each_pri_model_predicts_its_own_modulation(kind):
     """One source, the model its modulation names: after a few cycles every arrival is predicted

@@ -66,7 +66,7 @@ def test_deint_policies_mht_lists_every_parameter(capsys):
     from baselines.mht import MHT
 
     sig = [k for k in inspect.signature(MHT).parameters if k != "scorer"]
-    assert list(rows) == sig and len(sig) == 23
+    assert list(rows) == sig and len(sig) == 24
     for name, (typ, default, rng, meaning) in rows.items():
         assert typ.split(" | ")[0] in ("int", "float", "str", "bool") and default and rng and len(meaning) > 10
     assert rows["beam"][:3] == ["int", "32", "[1, 100000]"]

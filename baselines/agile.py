@@ -262,15 +262,12 @@ class PathSearch:
 
     # ---- the filter steps ---------------------------------------------------------------------------
     def _advance(self, mask: np.ndarray) -> None:
-        """Every model of the (hypothesis, source) pairs in `mask` (H, N) predicts its next emission."""
+        """Every model of the (hypothesis, source) pairs in `mask` (H, N) predicts its next emission.  The
+        search's arrays belong to it alone (each pulse's `take` makes fresh ones): updated in place."""
         if mask.any():
-            self._advance_pairs(*np.nonzero(mask))
-
-    def _advance_pairs(self, h: np.ndarray, i: np.ndarray) -> None:
-        """`_advance` of the distinct pairs (h[k], i[k]).  The search's arrays belong to it alone (each
-        pulse's `take` makes fresh ones), so they are updated in place."""
-        pred = self._predict(h, i, LinearBlock(self.state.x[h, i], self.state.p[h, i]))
-        self.state.x[h, i], self.state.p[h, i] = pred
+            h, i = np.nonzero(mask)
+            self.state.x[h, i], self.state.p[h, i] = self._predict(h, i, LinearBlock(self.state.x[h, i],
+                                                                                      self.state.p[h, i]))
 
     def _predict(self, h: np.ndarray, i: np.ndarray, b: LinearBlock) -> LinearBlock:
         """The next emission of every model of the distinct pairs (h[k], i[k]), whose states are b

@@ -255,20 +255,15 @@ class BankArrays:
         j = np.arange(self.length.shape[1])[None, :]
         return self.table[i, j, n[..., :, None] % self.length]
 
-    def transition(self, n: np.ndarray) -> np.ndarray:
-        """F(n) (..., N, M, D+1, D+1): tau' = tau + phi(n) . theta; theta' = A theta."""
-        f = np.broadcast_to(self.f, n.shape[:-1] + self.f.shape).copy()
-        f[..., TAU, 1:] = self.regressor(n)
-        return f
-
     # The trackers need phi and F of a few (source, slot) pairs per pulse: gathering just those is much
-    # cheaper than `regressor`/`transition` of every pair, and gives the same values.
+    # cheaper than `regressor` of every pair, and gives the same values.
     def phi(self, i: np.ndarray, j: np.ndarray, n: np.ndarray) -> np.ndarray:
         """phi(n) of source i's slot j at emission count n (index arrays of one broadcast shape): (..., D)."""
         return self.table[i, j, n % self.length[i, j]]
 
     def transition_of(self, i: np.ndarray, n: np.ndarray) -> np.ndarray:
-        """F(n) of every slot of the sources i (K,) at their counts n (K,): (K, M, D+1, D+1)."""
+        """F(n) of every slot of the sources i (K,) at their counts n (K,): (K, M, D+1, D+1); tau' = tau +
+        phi(n) . theta, theta' = A theta."""
         f = self.f[i]  # a copy (fancy index), filled in below
         f[..., TAU, 1:] = self.phi(i[:, None], np.arange(self.f.shape[1]), n[:, None])
         return f

@@ -116,7 +116,7 @@ def test_linear_block_is_the_dlm_block_for_a_constant_pri():
         assert le[0, 0] == pytest.approx(float(e[0]), abs=1e-9) and ls[0, 0] == pytest.approx(float(s[0]), rel=1e-9)
         b = update(pb, e, s, m)
         lin = linear_update(lin, le, ls, pri_models.TAU, m.jitter_var)
-        lin = linear_predict(lin, arrays.transition(np.array([n])), arrays.q)
+        lin = linear_predict(lin, arrays.transition_of(np.array([0]), np.array([n])), arrays.q)
     assert lin.x[0, 0, 1] == pytest.approx(float(b.period[0]), abs=1e-9)
 
 
@@ -161,7 +161,7 @@ def test_each_pri_model_predicts_its_own_modulation(kind):
             e, s = linear_innovation(state, yk, pri_models.TAU, SIGMA ** 2)
             z.append(float(e[0, 0] / np.sqrt(s[0, 0])))
             state = linear_predict(linear_update(state, e, s, pri_models.TAU, SIGMA ** 2),
-                                   a.transition(np.array([n])), a.q)
+                                   a.transition_of(np.array([0]), np.array([n])), a.q)
         errors[name] = np.abs(np.array(z[200:]))
     assert errors["named"].max() < 4.0, errors["named"].max()
     assert np.mean(errors["constant"] > 4.0) > 0.3 or kind == "drifting"
@@ -177,7 +177,8 @@ def test_drifting_model_estimates_the_shrinking_period():
     state = LinearBlock(a.x0, a.p0)
     for n, yk in enumerate(y):
         e, s = linear_innovation(state, yk, pri_models.TAU, SIGMA ** 2)
-        state = linear_predict(linear_update(state, e, s, pri_models.TAU, SIGMA ** 2), a.transition(np.array([n])), a.q)
+        state = linear_predict(linear_update(state, e, s, pri_models.TAU, SIGMA ** 2),
+                               a.transition_of(np.array([0]), np.array([n])), a.q)
     assert state.x[0, 0, 1] == pytest.approx(pri[-1] * 0.999, rel=0.01)
     assert abs(pri[-1] / 20.0 - 0.999 ** 599) < 1e-9  # the train did shrink (by 45 %)
 

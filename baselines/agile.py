@@ -503,13 +503,11 @@ class PathSearch:
         wt = np.swapaxes(wij, 1, 2)  # (R, j, i)
         x0 = wt @ x  # mixed means
         # sum_i w_ij (P_i + dx dx'), dx = x_i - x0_j: positive by construction.  Every j at once, each
-        # j's product the same (1, M) @ (M, d^2) as one j at a time; the outer products dx dx' are taken
-        # with the state's axis first, where numpy runs long loops over the (R, j, i) pairs rather than
-        # one loop of d per pair, then transposed into place.
-        dx = np.empty((d, r, m, m))  # (D+1, R, j, i)
-        np.subtract(np.moveaxis(x, 2, 0)[:, :, None, :], np.moveaxis(x0, 2, 0)[:, :, :, None], out=dx)
-        dx = dx.reshape(d, -1)
-        spread = np.ascontiguousarray((dx[:, None] * dx[None]).reshape(d * d, -1).T).reshape(r, m, m, d * d)
+        # j's product the same (1, M) @ (M, d^2) as one j at a time.  The outer products are single
+        # products (the same bits however they are taken); einsum lays them out in place twice as fast as
+        # a broadcast product of d-long rows.
+        dx = (x[:, None, :, :] - x0[:, :, None, :]).reshape(-1, d)  # (R j i, D+1)
+        spread = np.einsum("ki,kj->kij", dx, dx).reshape(r, m, m, d * d)
         spread += p.reshape(r, 1, m, d * d)
         p0 = (wt[:, :, None] @ spread).reshape(r, m, d, d)
         return LinearBlock(x0, p0)

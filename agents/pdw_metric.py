@@ -26,9 +26,9 @@ other pulse of the window its negatives; spurious pulses are never anchors nor p
 class of its own: pushed away from everything).
 
 Labelling (`PDWMetricPolicy`, a `baselines.pdw.policy.PDWPolicy`): the policy buffers `window` pulses
-(lag window - 1), embeds them, clusters the embeddings with scikit-learn's HDBSCAN (`min_cluster_size`;
-noise: spurious) and hands the clusters to PDWPolicy, which carries emitter labels from window to
-window by their descriptors (the pdw-* policies' own code).  `network=off` (the ablation) clusters the
+(lag window - 1), embeds them, clusters the embeddings with HDBSCAN (as scikit-learn defines it:
+`baselines.blind.density`; `min_cluster_size`; noise: spurious) and hands the clusters to PDWPolicy,
+which carries emitter labels from window to window by their descriptors (the pdw-* policies' own code).  `network=off` (the ablation) clusters the
 7 scaled features themselves, the same way.
 
 Trained on pdw-v0's blind scenarios, TRAIN seeds only; every setting (window, min_cluster_size, the

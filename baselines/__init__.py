@@ -121,9 +121,11 @@ POLICIES = (
     PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND, version=2,
                description="blind: Nishiguchi & Kobayashi's jitter-robust PRI transform (2000) + sequence search"),
     PolicyInfo("dbscan", "baselines.blind.clustering:DBSCANPolicy", modes=BLIND,
-               description="blind: scikit-learn DBSCAN on pulse descriptors (TOA differences, amplitude, PDWs)"),
+               description="blind: DBSCAN (as scikit-learn defines it) on pulse descriptors (TOA differences, "
+                           "amplitude, PDWs)"),
     PolicyInfo("hdbscan", "baselines.blind.clustering:HDBSCANPolicy", modes=BLIND,
-               description="blind: scikit-learn HDBSCAN on pulse descriptors (the TDC baseline's method)"),
+               description="blind: HDBSCAN (as scikit-learn defines it) on pulse descriptors (the TDC baseline's "
+                           "method)"),
     # pulse descriptor words (frequency, pulse width, AoA per pulse; issue #28): TOA-only scenarios are not applicable
     PolicyInfo("pdw-hdbscan", "baselines.pdw.hdbscan:PDWHDBSCANPolicy", modes=BLIND,
                description="blind, PDWs: the Turing Deinterleaving Challenge's baseline, HDBSCAN on the raw PDWs "

@@ -143,6 +143,23 @@ def test_labelling_imports_only_what_the_policy_needs(tmp_path):
     assert "numba" in compiled and not {"sklearn", "torch"} & {m.split(".")[0] for m in compiled}
 
 
+def test_density_clustering_labels_without_scikit_learn(tmp_path):
+    """`dbscan`, `hdbscan`, `pdw-hdbscan`, `pdw-pipeline` and the blind policies' descriptor presort
+    (`cdif` on a file with PDWs) cluster with baselines/blind/density.py: no scikit-learn is loaded (its
+    `sklearn.cluster` import alone takes about 1 s)."""
+    mods = loaded_after("from deint_env.cli import main\n"
+                        "from deint_env.policies import make_policy\n"
+                        "make_policy('pdw-pipeline')\n"
+                        "assert main(['simulate', 'pdw-v0/pdw-staring-n5-blind', '--seed', '0', '-o', 'p.h5', "
+                        "'--priors-out', 'p.json']) == 0\n"
+                        "for policy in ('dbscan', 'hdbscan', 'pdw-hdbscan', 'cdif'):\n"
+                        "    assert main(['label', 'p.h5', '--priors', 'p.json', '--policy', policy, "
+                        "'-o', 'l.csv']) == 0",
+                        tmp_path)
+    assert {"baselines.blind.density", "baselines.pdw.pipeline"} <= mods
+    assert "sklearn" not in {m.split(".")[0] for m in mods}
+
+
 def test_labelling_loads_neither_the_runner_nor_the_installed_metadata(tmp_path):
     """`deint label` plays through `deint_env.play`, without the runner's process pool, progress bar and
     results files, and finds a shipped policy without reading the installed metadata (importlib.metadata:

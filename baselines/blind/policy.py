@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from baselines.blind.density import dbscan
 from baselines.blind.descriptors import standardised
 from baselines.blind.detectors import CDIF, SDIF, PRITransform
 from baselines.blind.noise import estimate_noise
@@ -208,9 +209,7 @@ class HistogramPolicy(BlindWindowPolicy):
         feats = self.window_features(toa.size)
         if not feats:
             return self._label_toas(toa)
-        from sklearn.cluster import DBSCAN
-
-        ids = DBSCAN(eps=self.presort_eps, min_samples=self.min_pulses).fit_predict(standardised(feats))
+        ids = dbscan(standardised(feats), self.presort_eps, self.min_pulses)
         labels = np.full(toa.size, -1, dtype=np.int64)
         trains = []
         for g in np.unique(ids):

@@ -2,7 +2,7 @@
 angle of arrival and amplitude, as the Turing Deinterleaving Challenge's files carry them (Gunn et al.,
 "The Turing Synthetic Radar Dataset: a dataset for pulse deinterleaving", arXiv:2602.03856).
 
-- `pdw-hdbscan` (`baselines.pdw.hdbscan`): the challenge's baseline, scikit-learn's HDBSCAN on the
+- `pdw-hdbscan` (`baselines.pdw.hdbscan`): the challenge's baseline, HDBSCAN (as scikit-learn defines it) on the
   PDWs of each window;
 - `pdw-pipeline` (`baselines.pdw.pipeline`): the classical EW pipeline, parameter cells first, then PRI
   analysis and sequence search within each cell, then cells of one agile emitter merged.

@@ -1,5 +1,6 @@
-"""`pdw-hdbscan`: the Turing Deinterleaving Challenge's baseline, scikit-learn's HDBSCAN on each window's
-pulse descriptor words.
+"""`pdw-hdbscan`: the Turing Deinterleaving Challenge's baseline, HDBSCAN as scikit-learn defines it on
+each window's pulse descriptor words (baselines/blind/density.py, tested label for label against
+scikit-learn, so a labelling call does not pay scikit-learn's ~1 s import).
 
 What the challenge's public material says of its baseline (alan-turing-institute/
 turing-deinterleaving-challenge: README's leader board, `examples/identity_model.ipynb`, issue #8): HDBSCAN
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from baselines.blind.density import hdbscan
 from baselines.blind.descriptors import standardised
 from baselines.pdw.policy import Clusters, PDWPolicy, PDWs, aoa_plane
 from baselines.windowed import MAX_WINDOW
@@ -38,17 +40,14 @@ def pdw_matrix(p: PDWs, scale: str) -> np.ndarray:
 
 def hdbscan_clusters(x: np.ndarray, min_cluster_size: int, min_samples: int | None = None,
                      epsilon: float = 0.0) -> Clusters:
-    """scikit-learn's HDBSCAN on the rows of x (noise: -1), its sizes held to the row count, as Clusters
-    with no PRI; fewer than 2 rows are noise."""
-    from sklearn.cluster import HDBSCAN
-
+    """HDBSCAN (scikit-learn's, baselines/blind/density.py) on the rows of x (noise: -1), its sizes held
+    to the row count, as Clusters with no PRI; fewer than 2 rows are noise."""
     n = x.shape[0]
     if n < 2:
         return Clusters(np.full(n, -1, dtype=np.int64), np.zeros(0))
     least = None if min_samples is None else min(min_samples, n)
-    ids = HDBSCAN(min_cluster_size=min(min_cluster_size, n), min_samples=least, cluster_selection_epsilon=epsilon,
-                  copy=True).fit_predict(x)
-    return Clusters(ids.astype(np.int64), np.full(int(ids.max()) + 1, np.nan))
+    ids = hdbscan(x, min(min_cluster_size, n), least, epsilon)
+    return Clusters(ids, np.full(int(ids.max()) + 1, np.nan))
 
 
 class PDWHDBSCANPolicy(PDWPolicy):

@@ -4,11 +4,11 @@ analyse the TOAs of each sort).
 
 For each window (default the largest the env allows, 10001 pulses: lag 10000):
 
-1. Parameter cells: HDBSCAN on the frequency, pulse width and AoA (its plane: `aoa_plane`), each column
-   centred on its median and divided by its interquartile range.  The amplitude is left out (it follows
-   the antenna scan and the range, not the emitter).  A pulse HDBSCAN calls noise joins the nearest
-   cell when it lies within 4 robust deviations of it in every column (a descriptor's noise tail), else
-   it is spurious.
+1. Parameter cells: HDBSCAN (scikit-learn's, in baselines/blind/density.py) on the frequency, pulse width
+   and AoA (its plane: `aoa_plane`), each column centred on its median and divided by its interquartile
+   range.  The amplitude is left out (it follows the antenna scan and the range, not the emitter).  A
+   pulse HDBSCAN calls noise joins the nearest cell when it lies within 4 robust deviations of it in
+   every column (a descriptor's noise tail), else it is spurious.
 2. PRI analysis and sequence search within each cell (`baselines.blind.pipeline.deinterleave`: a PRI
    detector, the sequence search, re-association): a cell holding several emitters of like parameters
    is split into their trains, and pulses of no train are spurious (noise rejection).  The TOA noise
@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from baselines.blind.density import hdbscan
 from baselines.blind.descriptors import standardised
 from baselines.blind.detectors import CDIF, SDIF, PRITransform
 from baselines.blind.noise import estimate_noise
@@ -145,13 +146,11 @@ class PDWPipelinePolicy(PDWPolicy):
         self.min_pulses, self.min_fill, self.max_miss = min_pulses, float(min_fill), max_miss
 
     def label_window(self, p: PDWs) -> Clusters:
-        from sklearn.cluster import HDBSCAN
-
         n = p.toa.size
         if n < self.min_pulses:
             return Clusters(np.full(n, -1, dtype=np.int64), np.zeros(0))
         z = cell_features(p)
-        cells = attach_noise(z, HDBSCAN(min_cluster_size=self.min_pulses, copy=True).fit_predict(z))
+        cells = attach_noise(z, hdbscan(z, self.min_pulses))
         m = int(cells.max()) + 1
         if m == 0:
             return Clusters(np.full(n, -1, dtype=np.int64), np.zeros(0))

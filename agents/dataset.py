@@ -157,8 +157,9 @@ def _check(config: DatasetConfig) -> tuple[Path, dict[str, Any]]:
         parse_dataset_id(config.dataset_id)
     except ValueError:
         raise DeintError(bad) from None
-    root = Path(config.root) if config.root is not None else Path(
-        os.environ.get("MINARI_DATASETS_PATH") or Path.home() / ".minari" / "datasets")
+    # absolute: Minari joins a relative MINARI_DATASETS_PATH (the temporary folder below) onto itself again
+    root = (Path(config.root) if config.root is not None else Path(
+        os.environ.get("MINARI_DATASETS_PATH") or Path.home() / ".minari" / "datasets")).absolute()
     if (root / config.dataset_id).exists():
         raise DeintError(f"dataset {config.dataset_id} already exists in {root}; choose another name or version")
     entries = select_entries(config.suite, config.scenarios, config.tags)

@@ -44,7 +44,7 @@ import numpy as np
 from baselines import pri_models
 from baselines.kalman import LinearBlock, linear_innovation, linear_predict, linear_update
 from baselines.pri_models import TAU, BankArrays
-from deint_env.episode import Priors
+from deint_env.episode import MAX_MAGNITUDE, Priors
 from deint_env.errors import DeintError, NotApplicable
 from deint_env.params import Param, ParamSet, declare
 
@@ -650,6 +650,9 @@ class RenewalML(PathSearch):
             return super().act(obs)
         if int(obs["valid"]):
             y = float(obs["toa"][0])
+            if not abs(y) <= MAX_MAGNITUDE:  # its noise, measured on such TOAs, squares past float64
+                raise NotApplicable(f"a TOA of {y:.3g}: blind {type(self).__name__} measures the TOA noise on TOAs "
+                                    f"up to {MAX_MAGNITUDE:g} in size")
             self._toas.append(y)
             seen = len(self._toas)
             if not ((seen == self.lag + 1 or seen in self._CHECKPOINTS) and self._remeasure()):

@@ -119,7 +119,7 @@ import numpy as np
 from deint_env.receiver import is_spurious
 from baselines.kalman import Block, DLMModel, overdue, phase_estimate, predict, prior_block, update
 from deint_env.episode import Priors
-from deint_env.errors import check
+from deint_env.errors import NotApplicable, check
 from deint_env.params import SEED, Param, declare
 from deint_env.policies import policy_rng
 
@@ -129,6 +129,7 @@ _PRIOR_MEAN, _PRIOR_WEIGHT = 0.05, 20.0  # the weak Beta prior of an unknown rat
 _Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or lost pulse stays explainable
 _LAM_FLOOR = 1e-6  # and its least spurious probability: a pulse no track can explain stays spurious (mht's _R_ZERO)
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
+_MAX_STEPS = 2.0**53  # arrivals a pulse may lie past a track: float64 (and the int64 counts) stay exact below
 _START_BEAM = {"decision": 32, "posterior": 128}  # labellings kept during the start, per teacher
 _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period deviation is below this fraction
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
@@ -325,6 +326,10 @@ class ProbabilisticTeacher:
         if self._misses and q > 0:
             near = np.floor((y - b.tau) / b.period + 0.5)
             more = np.flatnonzero(near > 1.0)
+            if more.size and not near[more].max() < _MAX_STEPS:  # a TOA of 1e300, or a period of 1e-30
+                j = int(more[np.argmax(near[more])])
+                raise NotApplicable(f"the pulse at TOA {y:.6g} lies {near[j]:.3g} periods ({b.period[j]:.3g}) past "
+                                    f"track {j}'s last arrival; at most 2^53 can be counted")
         if more is not None and more.size:
             source, steps = np.concatenate([source, more]), np.concatenate([steps, near[more]])
             bb = b.take(source)

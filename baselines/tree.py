@@ -55,7 +55,9 @@ class TreeSearch:
 
     PARAMS = declare(Param("max_pulses", int, 20, "the longest train it waits for (the lag is max_pulses - 1)", low=1,
                            high=200),
-                     Param("max_nodes", int, 2_000_000, "the most tree nodes the search expands", low=1))
+                     # a node holds its KF blocks and its sequence: 2e6 nodes of 200 pulses took 1.7 GB
+                     Param("max_nodes", int, 2_000_000, "the most tree nodes the search expands", low=1,
+                           high=2_000_000))
 
     def __init__(self, max_pulses: int = 20, max_nodes: int = 2_000_000):
         self.PARAMS.check(locals())

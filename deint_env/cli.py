@@ -75,7 +75,8 @@ def _scenario(text: str):
     from deint_env.scenario import ScenarioSpec
     from deint_env.suites import resolve_scenario
 
-    if os.path.isfile(text):
+    # a FIFO or a device is read as a file too, and refused as not regular (not looked up as a name)
+    if os.path.exists(text) and (text.endswith(".json") or not os.path.isdir(text)):
         try:
             return ScenarioSpec.from_dict(formats.read_json(text))
         except DeintError as e:
@@ -172,7 +173,9 @@ def _cli_priors(args: argparse.Namespace):
             raise DeintError("the policy needs priors: give --priors PRIORS.json, or --prior-periods a,b,... "
                              "(or --n-sources N for blind labelling)")
         return Priors.from_json_dict({"blind": True, "label_budget": args.n_sources}, where="--n-sources")
-    try:
+    try:  # float() also reads '1_0' as 10 and non-ASCII digits: not numbers here
+        if not args.prior_periods.isascii() or "_" in args.prior_periods:
+            raise ValueError(args.prior_periods)
         periods = [float(x) for x in args.prior_periods.split(",")]
     except ValueError:
         raise DeintError(f"--prior-periods={args.prior_periods!r} is invalid: comma-separated positive numbers") \

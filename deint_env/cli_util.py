@@ -5,18 +5,32 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from pathlib import Path
 
 from deint_env.errors import DeintError
+from deint_env.formats.files import check_output
 
 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
+def _decimal_int(text: str) -> int:
+    """int() of ASCII decimal digits only: int() also reads '1_0' as 10 and non-ASCII digits ('٣' as 3)."""
+    if not re.fullmatch(r"\s*[+-]?[0-9]+\s*", text):
+        raise ValueError(text)
+    return int(text)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line, like every other error of `deint`."""
+    """argparse with usage errors as one line, like every other error of `deint`; `type=int` arguments
+    take decimal integers only (argparse's message still says "invalid int value")."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("type", int, _decimal_int)
 
     def error(self, message: str):
         self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
@@ -27,9 +41,10 @@ def _status(text: str) -> None:
 
 
 def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) -> None:
-    """Fail before anything is read or written when an output's directory is missing, or an output is
-    the same file as an input or another output: by resolved path (symlinks, '..', './'), and for
-    existing files by device and inode (hard links).  Keys are the options that name the paths."""
+    """Fail before anything is read or written when an output is not a regular file (`check_output`), its
+    directory is missing, or it is the same file as an input or another output: by resolved path (symlinks,
+    '..', './'), and for existing files by device and inode (hard links).  Keys are the options that name the
+    paths."""
     named_in = [(k, p) for k, p in inputs.items() if p]
     named_out = [(k, p) for k, p in outputs.items() if p]
     for opt, path in named_out:
@@ -41,6 +56,8 @@ def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) 
                 role = "output" if (other_opt, other) in named_out else "input"
                 raise DeintError(f"{opt} {path} is the same file as the {role} {other_opt} {other}; "
                                  f"name a different file for each input and output")
+    for _, path in named_out:  # a directory or a FIFO refused now, not after the policy has played
+        check_output(path)
 
 
 def _policy_inputs(specs: list[str]) -> dict[str, str]:

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 
 
 DESCRIPTORS = ("frequency", "pulse_width", "aoa")  # Episode's optional pulse descriptor arrays
@@ -95,7 +95,12 @@ class Priors:
         kw = {k: info[k] for k in ("n_labels", "blind", *SCALARS) if k in info}
         for k in ("period", "phase", "period_std", "phase_std", "source_prob", "amplitude", "amplitude_std", *LIBRARY):
             if info.get(k) is not None:
-                kw[k] = np.asarray(info[k], dtype=np.float64)
+                try:
+                    kw[k] = np.asarray(info[k], dtype=np.float64)
+                except (TypeError, ValueError):
+                    raise DeintError(f"priors: {k}={shown(info[k])} must be an array of numbers") from None
+        if "period" in kw and not np.all(kw["period"] > 0):  # a NaN period would reach every policy
+            raise DeintError(f"priors: period={shown(kw['period'].tolist())} must be positive numbers")
         if info.get("modulation") is not None:
             kw["modulation"] = _parse_modulation(info["modulation"], int(info["n_labels"]), "priors")
         return cls(**kw)
@@ -156,6 +161,10 @@ class Priors:
         if not isinstance(blind, bool):  # "false", "yes" and 1 are not JSON booleans (and "false" is truthy)
             raise DeintError(f"{where}: blind={blind!r} must be true or false")
         if blind:
+            tracks = sorted(set(d) - {"blind", "label_budget", *SCALARS})
+            if tracks:  # blind priors have no tracks: a period or phase here would be silently dropped
+                raise DeintError(f"{where}: {tracks[0]} is for anchored priors; blind priors (\"blind\": true) take "
+                                 f"label_budget and {', '.join(SCALARS)} only")
             budget = d.get("label_budget")
             if type(budget) is not int or not 1 <= budget <= 256:
                 raise DeintError(f"{where}: label_budget={budget!r} must be an integer in [1, 256]")
@@ -189,6 +198,9 @@ class Priors:
             raise DeintError(f"{where}: source_prob must sum to 1, got {prob.sum():g}")
         amplitude = vector("amplitude", n, True)
         amplitude_std = vector("amplitude_std", n, True)
+        for spread, mean in (("phase_std", phase), ("amplitude_std", amplitude)):
+            if spread in d and mean is None:  # a spread without its mean would be silently dropped
+                raise DeintError(f"{where}: {spread} needs {spread[:-4]} (the means it is the spread of)")
         library = {}
         for name in LIBRARY[::2]:  # each descriptor's mean and spread come together
             mean, std = vector(name, n, name != "aoa"), vector(f"{name}_std", n, True)

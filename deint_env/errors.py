@@ -13,7 +13,16 @@ class NotApplicable(DeintError):
     leaderboards report the policy's coverage instead of a score for them."""
 
 
+MAX_SHOWN = 200  # characters of a bad value an error line repeats (a 10^4-entry list is not a message)
+
+
+def shown(value: object) -> str:
+    """`repr(value)`, cut to MAX_SHOWN characters."""
+    text = repr(value)
+    return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN] + "..."
+
+
 def check(ok: bool, what: str, value: object, allowed: str) -> None:
     """Raise `DeintError("<what>=<value> is invalid: <allowed>")` unless `ok`."""
     if not ok:
-        raise DeintError(f"{what}={value!r} is invalid: {allowed}")
+        raise DeintError(f"{what}={shown(value)} is invalid: {allowed}")

@@ -123,6 +123,10 @@ def evaluate(policy: Any, *, suite: str | None = None, scenarios: Sequence[str] 
         raise DeintError("name a suite= or some scenarios= (SUITE/SCENARIO names), not both")
     if isinstance(scenarios, str):
         raise DeintError(f"scenarios={scenarios!r} is invalid: a list of SUITE/SCENARIO names")
+    if suite is not None and "/" not in suite:
+        from deint_env.suites import load_suite
+
+        load_suite(suite)  # an unknown suite named as one (a target name is otherwise looked up as a scenario)
     targets = [suite] if suite is not None else list(scenarios or ())
     if split == "test":
         warnings.warn("split='test' plays the test seeds: they are for a finished agent's one look (boards count "

@@ -46,7 +46,8 @@ def genie_labels(toa: np.ndarray, schedule_toa: np.ndarray, schedule_source: np.
     if n == 0:
         return np.zeros(0, dtype=np.int64)
     spacing = float(np.median(np.diff(s))) if m > 1 else 1.0
-    sigma = max(jitter_std, 1e-9 * max(spacing, 1e-300))
+    # floored so that 1 / sigma^2 stays finite (coincident emissions made the median spacing 0: 1e-309 squared is 0)
+    sigma = max(jitter_std, 1e-9 * max(spacing, 1e-140))
     # p_i: missed, or merged with a neighbour (the pair lands closer than `resolution`; either may
     # survive, so each member is absorbed with half the pair's probability).
     p_merge = np.zeros(m)
@@ -182,6 +183,10 @@ def _check_schedule_size(toa: np.ndarray, priors: Priors) -> None:
     if not step <= t_min / 100:
         raise NotApplicable(f"genie: TOAs up to {max(abs(toa[0]), abs(toa[-1])):.3g} are stored in float64 steps of "
                             f"{step:.3g}, too coarse for the shortest period {t_min:.3g}")
+    far = float(np.max(np.abs(priors.phase)))
+    if not math.ulp(far) <= t_min / 100:  # a phase of 1e30 put the schedule's indices beyond int64
+        raise NotApplicable(f"genie: phases up to {far:.3g} are stored in float64 steps of {math.ulp(far):.3g}, too "
+                            f"coarse for the shortest period {t_min:.3g}")
     span = float(toa[-1]) - float(toa[0]) + 16 * sigma + 2 * priors.coincidence_resolution + 2.0
     emissions = float(np.sum(span / period))
     limit = MAX_EMISSIONS_PER_PULSE * n + MAX_EMISSIONS_EXTRA

@@ -120,11 +120,11 @@ class Param:
             ok = isinstance(value, str) and (not self.choices or value in self.choices)
         else:
             ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and \
-                (t is float or isinstance(value, numbers.Integral)) and not math.isnan(value)
-            if ok:
-                v = float(value)
+                (t is float or isinstance(value, numbers.Integral)) and value == value  # not NaN
+            if ok:  # an integer compared exactly: float(2**63 - 1) rounds up to 2^63, past an open bound
+                v = int(value) if isinstance(value, numbers.Integral) else float(value)
                 closed_inf = self.high is not None and math.isinf(self.high) and not self.high_open
-                ok = (math.isfinite(v) or (v == math.inf and closed_inf)) and \
+                ok = (isinstance(v, int) or math.isfinite(v) or (v == math.inf and closed_inf)) and \
                     (self.low is None or (v > self.low if self.low_open else v >= self.low)) and \
                     (self.high is None or (v < self.high if self.high_open else v <= self.high))
         if not ok:

@@ -29,6 +29,13 @@ MAX_MERGING_SOURCES = 64  # merged-pulse membership is a uint64 bit mask: mergin
 # 0.125-160, phases within 5 periods and jitter within 10 of the smallest period
 MIN_PERIOD, MAX_PERIOD, MAX_PERIOD_RATIO = 1e-9, 1e12, 1e4
 MAX_SAMPLES = 5e7  # a waveform front end's samples per episode (each is a Kalman step of the detector)
+# A modulation's size: the agile trackers build tables of levels x levels and of a cycle's pulses (10^4
+# levels asked for 7 GiB, a cycle of 10^18 pulses exabytes); the suites use at most 5 levels, 35-pulse dwells
+MAX_LEVELS, MAX_CYCLE = 64, 10**6
+MAX_DRIFT = 1e30  # a drifting PRI's step deviation (TOA units): the trackers square it over the period
+# A waveform channel's coefficients: the detector's Kalman state has as many, stepped once per sample (DM89's
+# channel has 5; 10^5 asked numpy for a 74.5 GiB matrix)
+MAX_CHANNEL_TAPS = 16
 
 
 MODULATIONS = ("constant", "stagger", "sliding", "sinusoidal", "drifting", "dwell_switch", "random_stagger")
@@ -80,21 +87,22 @@ class Modulation:
         k = self.kind
         levelled = ("stagger", "dwell_switch", "random_stagger")
         if k in levelled:
-            check(len(self.pattern) >= 2 and min(self.pattern) > 0, "modulation.pattern", self.pattern,
-                  f"{k} needs at least two positive PRI multipliers")
+            check(2 <= len(self.pattern) <= MAX_LEVELS and min(self.pattern) > 0, "modulation.pattern", self.pattern,
+                  f"{k} needs at least two (at most {MAX_LEVELS}) positive PRI multipliers")
         else:
             check(not self.pattern, "modulation.pattern", self.pattern, f"only {'/'.join(levelled)} take a pattern")
         self._check_levels()
         needs_cycle = k in ("sliding", "sinusoidal") or (k == "dwell_switch" and not self.dwells)
         if k == "sinusoidal":  # a wobulation's cycle need not be whole; a whole float is stored as an int
-            check(_is_number(self.cycle) and math.isfinite(self.cycle) and self.cycle >= 2, "modulation.cycle",
-                  self.cycle, "sinusoidal needs a number >= 2 (pulses per cycle, not necessarily whole)")
+            check(_is_number(self.cycle) and 2 <= self.cycle <= MAX_CYCLE, "modulation.cycle", self.cycle,
+                  f"sinusoidal needs a number >= 2 and <= {MAX_CYCLE:.0e} (pulses per cycle, not necessarily whole)")
             if float(self.cycle).is_integer():
                 object.__setattr__(self, "cycle", int(self.cycle))
         else:
             check(isinstance(self.cycle, int) and not isinstance(self.cycle, bool)
-                  and (self.cycle >= 2 if needs_cycle else self.cycle == 0), "modulation.cycle", self.cycle,
-                  f"{k} needs " + ("an integer >= 2 (pulses)" if needs_cycle else
+                  and (2 <= self.cycle <= MAX_CYCLE if needs_cycle else self.cycle == 0), "modulation.cycle",
+                  self.cycle,
+                  f"{k} needs " + (f"an integer >= 2 and <= {MAX_CYCLE:.0e} (pulses)" if needs_cycle else
                                    "0 (its dwells give the lengths)" if k == "dwell_switch" else "0"))
         check(self.relative_to in SLIDING_REFERENCES and (k == "sliding" or self.relative_to == "mean"),
               "modulation.relative_to", self.relative_to,
@@ -114,8 +122,8 @@ class Modulation:
         if k == "drifting":
             check(0.9 <= self.alpha <= 1.1, "modulation.alpha", self.alpha, "0.9 <= alpha <= 1.1 (see also "
                   "ScenarioSpec: the period may change at most 100-fold over the episode)")
-            check(math.isfinite(self.drift_std) and self.drift_std >= 0, "modulation.drift_std", self.drift_std,
-                  "must be >= 0")
+            check(0 <= self.drift_std <= MAX_DRIFT, "modulation.drift_std", self.drift_std,
+                  f"a number in [0, {MAX_DRIFT:g}]")
         else:
             check(self.alpha == 1.0 and self.drift_std == 0.0, "modulation.alpha", (self.alpha, self.drift_std),
                   "alpha and drift_std are for kind='drifting' only")
@@ -128,8 +136,9 @@ class Modulation:
               "a list of rows (lists of numbers)")
         object.__setattr__(self, "transition", tuple(_floats(row, "modulation.transition") for row in self.transition))
         check(isinstance(self.dwells, (list, tuple)) and all(
-            isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in self.dwells), "modulation.dwells",
-            self.dwells, "a list of whole numbers of pulses >= 1")
+            isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in self.dwells)
+            and sum(self.dwells) <= MAX_CYCLE, "modulation.dwells", self.dwells,
+            f"a list of whole numbers of pulses >= 1, {MAX_CYCLE:.0e} in all at most")
         object.__setattr__(self, "dwells", tuple(self.dwells))
         if k != "random_stagger":
             for name in ("probs", "transition"):
@@ -274,10 +283,10 @@ class WaveformSpec:
         check(self.sample_period > 0, "waveform.sample_period", self.sample_period, "must be > 0")
         for name in ("numerator", "denominator"):
             object.__setattr__(self, name, _floats(getattr(self, name), f"waveform.{name}"))
-        check(len(self.numerator) >= 1 and any(self.numerator), "waveform.numerator", self.numerator,
-              "at least one nonzero coefficient")
-        check(len(self.denominator) >= 1 and self.denominator[0] != 0, "waveform.denominator", self.denominator,
-              "a leading coefficient != 0")
+        check(1 <= len(self.numerator) <= MAX_CHANNEL_TAPS and any(self.numerator), "waveform.numerator",
+              self.numerator, f"1 to {MAX_CHANNEL_TAPS} coefficients, at least one nonzero")
+        check(1 <= len(self.denominator) <= MAX_CHANNEL_TAPS and self.denominator[0] != 0, "waveform.denominator",
+              self.denominator, f"1 to {MAX_CHANNEL_TAPS} coefficients, the leading one != 0")
         object.__setattr__(self, "noise_std", _number(self.noise_std, "waveform.noise_std", 0.0))
         check(self.noise_std > 0, "waveform.noise_std", self.noise_std, "must be > 0 (the detector needs noise)")
         if self.spike_prob is not None:
@@ -609,7 +618,11 @@ def _from_dict(cls: type, d: Any, what: str) -> Any:
     if cls is SourceSpec and "active" in kwargs:
         check(isinstance(kwargs["active"], (list, tuple)), "source.active", kwargs["active"], "a list of windows")
         kwargs["active"] = tuple(tuple(w) if isinstance(w, list) else w for w in kwargs["active"])
+    missing = [f.name for f in fields(cls) if f.name not in kwargs and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:  # said here: the TypeError would name Python's __init__ and its positional arguments
+        raise DeintError(f"{what}: field {missing[0]!r} is required; required: {', '.join(missing)}")
     try:
         return cls(**kwargs)
-    except TypeError as e:  # a required field is missing
+    except TypeError as e:
         raise DeintError(f"{what}: {e}") from None

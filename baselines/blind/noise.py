@@ -25,6 +25,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from deint_env.episode import MAX_MAGNITUDE
+from deint_env.errors import NotApplicable
+
 _MAD = 1.4826  # MAD -> standard deviation for a normal sample
 
 
@@ -91,10 +94,20 @@ def _core(d: np.ndarray, width: float) -> tuple[float, float, int]:
     return centre, dev, int(d.size)
 
 
+def check_magnitude(toa: np.ndarray) -> None:
+    """Refuse (NotApplicable) TOAs the blind PRI analysis cannot run on: it squares PRIs and the TOA noise,
+    which overflowed float64 (a traceback) for TOAs of 1e300."""
+    top = float(np.abs(toa).max(initial=0.0))
+    if not top <= MAX_MAGNITUDE:
+        raise NotApplicable(f"TOAs up to {top:.3g}: the blind PRI analysis handles TOAs up to {MAX_MAGNITUDE:g} in "
+                            "size")
+
+
 def estimate_noise(toa: np.ndarray) -> Noise:
     """The white TOA noise and PRI jitter of the trains in `toa` (sorted), from the narrowest of the
     strongest difference peaks (module doc).  A record with no periodic peak gives zeros and NaN."""
     t = np.ascontiguousarray(toa, dtype=np.float64)
+    check_magnitude(t)
     if t.size < 12:
         return Noise(0.0, 0.0, math.nan)
     span = float(t[-1] - t[0])

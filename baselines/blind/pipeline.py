@@ -25,6 +25,7 @@ from typing import Callable, Iterable, NamedTuple
 import numpy as np
 
 from baselines.blind.histograms import Candidate
+from baselines.blind.noise import check_magnitude
 from baselines.blind.pri_models import line_fit, single_train_model, stagger_model
 from baselines.blind.search import Chain, pool, sequence_search
 from deint_env.oracle import genie_labels
@@ -281,6 +282,7 @@ def deinterleave(t: np.ndarray, detect: Detector, p: SearchParams, align: bool =
     labels = np.full(t.size, -1, dtype=np.int64)
     if t.size == 0:
         return Deinterleaving(labels, [])
+    check_magnitude(t)
     chains = merge_interleaved(t, extract_chains(t, detect, p), p.sigma)
     lo, hi = float(t[0]) - 4 * p.sigma, float(t[-1]) + 4 * p.sigma
     models, schedules = [], []

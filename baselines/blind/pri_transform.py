@@ -27,7 +27,9 @@ import numba
 import numpy as np
 
 from baselines.blind.histograms import Candidate
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, NotApplicable
+
+MAX_BINS = 1_000_000  # PRI bins of one transform (the suites need ~10^4)
 
 
 @numba.njit(cache=True)
@@ -72,6 +74,9 @@ def bin_centres(pri_min: float, pri_max: float, duration: float, min_width: floa
     out = [pri_min]
     while out[-1] < pri_max:
         out.append(out[-1] + max(out[-1] ** 2 / (8.0 * max(duration, 1e-300)), min_width))
+        if len(out) > MAX_BINS:  # pri_min=1e-9 over a record of 5000 asked for ~10^8 bins (GiBs, minutes)
+            raise NotApplicable(f"PRIs from {pri_min:.3g} to {pri_max:.3g} over a record of {duration:.3g} need more "
+                                f"than {MAX_BINS} PRI bins; raise pri_min")
     return np.asarray(out)
 
 

@@ -58,6 +58,8 @@ def _finish(tmp: Path, path: Path) -> None:
 def check_output(path: PathLike) -> None:
     """Refuse an output path that exists as anything but a regular file: renaming over a device node,
     a FIFO or a symbolic link would replace it (as root, `-o /dev/null` would replace /dev/null)."""
+    if not os.fspath(path):  # pathlib reads '' as '.', the current directory
+        raise DeintError("cannot write '': the path is empty; give a file name")
     if os.fspath(path).endswith(os.sep):  # pathlib would drop the slash and write `out.csv` for `out.csv/`
         raise DeintError(f"cannot write {path}: it names a directory (a trailing {os.sep}); give a file name")
     try:

@@ -22,6 +22,7 @@ trips are exact.  Files are written through `files.write_text` (atomic).  Every 
 from __future__ import annotations
 
 import csv
+import io
 import itertools
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from deint_env.episode import Episode, Priors
-from deint_env.errors import DeintError
+from deint_env.errors import MAX_SHOWN, DeintError, shown
 from deint_env.formats.files import PathLike, read_text, write_text
 from deint_env.labels import source_bits
 from deint_env.scenario import MAX_MERGING_SOURCES, MAX_SOURCES
@@ -46,9 +47,14 @@ def _split(path: Path, text: str) -> tuple[list[str], list[str], list[int]]:
     files with quotes go through the csv module, which unquotes them.
     """
     if '"' in text:
-        reader = csv.reader(text.splitlines())
+        reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+        rows = []
         try:
-            rows = list(reader)
+            for row in reader:
+                rows.append(row)
+                if reader.line_num > len(rows):  # a quoted cell ran over a line break ('"1\n5"' would read as 15)
+                    raise DeintError(f"{path}: line {len(rows)}: a quoted cell spans several lines; each line of "
+                                     f"the file is one row")
         except csv.Error as e:
             raise DeintError(f"{path}: line {reader.line_num}: {e}") from None
         while rows and not any(c.strip() for c in rows[-1]):  # trailing blank lines
@@ -80,11 +86,11 @@ def _table(path: Path, allowed: tuple[str, ...], what: str) -> tuple[list[str], 
         if _is_number(header[0]):
             raise DeintError(f"{path}: line 1: the header is missing; the first line must name the columns "
                              f"(allowed: {', '.join(allowed)}; 'toa' is required)")
-        raise DeintError(f"{path}: line 1: no 'toa' column (columns found: {', '.join(header)}); "
+        raise DeintError(f"{path}: line 1: no 'toa' column (columns found: {shown(header)}); "
                          f"allowed: {', '.join(allowed)}")
     for name in header:
         if name not in allowed:
-            raise DeintError(f"{path}: line 1: column {name!r} is unknown; allowed: {', '.join(allowed)}")
+            raise DeintError(f"{path}: line 1: column {shown(name)} is unknown; allowed: {', '.join(allowed)}")
         if header.count(name) > 1:
             raise DeintError(f"{path}: line 1: column {name!r} appears twice")
     n, width = len(widths), len(header)
@@ -116,7 +122,7 @@ def _check_plain(path: Path, name: str, cells: list[str], allowed: str) -> None:
     if joined.isascii() and "_" not in joined:
         return
     i = next(i for i, c in enumerate(cells) if not c.isascii() or "_" in c)
-    raise DeintError(f"{path}: line {i + 2}: {name}={cells[i].strip()!r} is not a decimal number; {allowed}")
+    raise DeintError(f"{path}: line {i + 2}: {name}={shown(cells[i].strip())} is not a decimal number; {allowed}")
 
 
 def _floats(path: Path, name: str, cells: list[str]) -> np.ndarray:
@@ -126,12 +132,12 @@ def _floats(path: Path, name: str, cells: list[str]) -> np.ndarray:
         values = np.array(cells, dtype=np.float64)
     except ValueError:
         i = next(i for i, c in enumerate(cells) if not _is_number(c))
-        got = f"{name}={cells[i].strip()!r} is not a number" if cells[i].strip() else f"{name} is empty"
+        got = f"{name}={shown(cells[i].strip())} is not a number" if cells[i].strip() else f"{name} is empty"
         raise DeintError(f"{path}: line {i + 2}: {got}; {name} must be a finite decimal number") from None
     bad = np.flatnonzero(~np.isfinite(values))
     if bad.size:
         i = int(bad[0])
-        raise DeintError(f"{path}: line {i + 2}: {name}={cells[i].strip()} is not finite; "
+        raise DeintError(f"{path}: line {i + 2}: {name}={cells[i].strip()[:MAX_SHOWN]} is not finite; "
                          f"{name} must be a finite decimal number")
     return values
 
@@ -148,7 +154,7 @@ def _ints(path: Path, name: str, cells: list[str], lo: int, hi: int, meaning: st
                                       & (values >= lo) & (values <= hi))
     if ok is None or not ok.all():
         i = next(i for i, c in enumerate(cells) if not _is_number(c)) if ok is None else int(np.flatnonzero(~ok)[0])
-        raise DeintError(f"{path}: line {i + 2}: {name}={cells[i].strip()!r} is invalid; {allowed}")
+        raise DeintError(f"{path}: line {i + 2}: {name}={shown(cells[i].strip())} is invalid; {allowed}")
     return values.astype(np.int64)
 
 
@@ -248,7 +254,7 @@ def _merge_sources(path: Path, cells: list[str], source_cells: list[str], source
             members = None
         if members == [src[i]]:
             continue
-        where = f"{path}: line {i + 2}: sources={cell!r}"
+        where = f"{path}: line {i + 2}: sources={shown(cell)}"
         if members is None or any(not 0 <= m < MAX_MERGING_SOURCES for m in members):
             raise DeintError(f"{where} is invalid; allowed: source numbers in [0, {MAX_MERGING_SOURCES - 1}] "
                              f"joined by '|' (e.g. 0|2), -1 for a spurious pulse, or empty")

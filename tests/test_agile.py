@@ -143,6 +143,38 @@ def test_linear_update_is_joseph_form_bit_for_bit():
         assert got.p.tobytes() == want_p.tobytes()
 
 
+def test_imm_mixing_is_blom_and_bar_shaloms_interaction_step():
+    """`PathSearch._mix`, all pairs at once, against IMM's interaction step written out one model j at a
+    time: w_ij = p_ij mu_i / sum_i p_ij mu_i within a family, x0_j = sum_i w_ij x_i, P0_j = sum_i w_ij (P_i
+    + (x_i - x0_j)(x_i - x0_j)')."""
+    from baselines.agile import RenewalML
+
+    rng = np.random.default_rng(5)
+    policy = RenewalML()
+    policy.reset(Priors(n_labels=2, period=np.array([10.0, 23.0]), phase=np.array([1.0, 4.0]), jitter_std=0.1,
+                        period_std=np.array([0.1, 0.2]), phase_std=np.array([0.5, 0.5])), {})
+    m, d = policy.arrays.valid.shape[1], policy.arrays.f.shape[-1]
+    same = policy.arrays.same_family
+    assert (same & ~np.eye(m, dtype=bool)).any()  # the default bank mixes (its PRI family)
+    src = rng.integers(0, 2, 7)
+    alive = rng.random((7, m)) < 0.8
+    alive[:, 0] = True
+    logw = np.where(alive, np.log(rng.dirichlet(np.ones(m), 7)), -np.inf)
+    a = rng.normal(size=(7, m, d, d))
+    b = LinearBlock(rng.normal(size=(7, m, d)) * 10, a @ np.swapaxes(a, -1, -2))
+    got = policy._mix(src, logw, alive, b)
+    for r in range(7):
+        mu = np.exp(logw[r])
+        trans = (1 - policy.switch) * np.eye(m) + policy.switch * alive[r][None, :] / alive[r].sum()
+        for j in range(m):
+            w = np.array([trans[i, j] * mu[i] if same[src[r], i, j] else 0.0 for i in range(m)])
+            w = w / w.sum() if w.sum() > 0 else np.eye(m)[j]  # a model no family member reaches keeps its state
+            x0 = sum(w[i] * b.x[r, i] for i in range(m))
+            p0 = sum(w[i] * (b.p[r, i] + np.outer(b.x[r, i] - x0, b.x[r, i] - x0)) for i in range(m))
+            np.testing.assert_allclose(got.x[r, j], x0, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(got.p[r, j], p0, rtol=1e-12, atol=1e-10)
+
+
 @pytest.mark.parametrize("kind", sorted(AGILE))
 def test_each_pri_model_predicts_its_own_modulation(kind):
     """One source, the model its modulation names: after a few cycles every arrival is predicted

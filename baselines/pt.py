@@ -86,6 +86,13 @@ version 5).  The deviation leaves out R, and is one, not two: with R, or at two,
 periods that swap coincident pulses (core-v0's 4-source scene, periods 14.04 and 14.64) look alike
 until they cross, and the swapped labelling, a little better then, took the true one's place (0.88 ->
 0.28 of that episode's labels right).
+`beam_span` (default 2) sets how many longest periods the beam runs; a large value (1e9) keeps it the whole
+episode, a lag-0 beam search that still labels each pulse at once but no longer goes on from one
+labelling: on the independent generator's dense files (8 sources, jitter 0.06 of the shortest period,
+clean channel, validation seeds 101-110) single decisions after the start lose the tracks one after
+another on half the files (0.15-0.18 of the labels right with the rates stated 0; mean 0.43, 0.60 with
+them unknown), the whole-episode beam holds them (mean 0.76 both ways, worst file 0.67; fdp 0.69), at
+about 40 times the time per pulse (docs/experiments.md, 'Dense scenes').
 
 Acquisition (`pt-post`).  The teacher's draw is as blind as a single decision to which fresh track a
 first pulse starts.  On the independent generator's dense files (8 sources, jitter 0.01 of the shortest
@@ -131,6 +138,7 @@ _LAM_FLOOR = 1e-6  # and its least spurious probability: a pulse no track can ex
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
 _MAX_STEPS = 2.0**53  # arrivals a pulse may lie past a track: float64 (and the int64 counts) stay exact below
 _START_BEAM = {"decision": 32, "posterior": 128}  # labellings kept during the start, per teacher
+_START_SPAN = 2.0  # the start's length, in longest prior periods from the first pulse
 _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period deviation is below this fraction
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
 _AHEAD_STEPS = np.array([[1.0], [2.0]])  # those arrivals, in steps of (2.8)
@@ -176,6 +184,8 @@ PARAMS = declare(
           "(dropout; none: never, or 4 with coast=none)", low=1, optional=True),
     Param("rates", str, "priors", "priors: the priors' miss/spurious rates (unknown ones estimated); estimate: both "
           "estimated online", choices=RATES),
+    Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides by "
+          "its beam of labellings (1e9: the whole episode; module doc, 'Start beam')", low=0, low_open=True),
 )
 
 
@@ -188,13 +198,14 @@ class ProbabilisticTeacher:
     lag = 0
 
     def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
-                 gate: float = 5.0, reset_after: int | None = None, rates: str = "priors"):
+                 gate: float = 5.0, reset_after: int | None = None, rates: str = "priors",
+                 beam_span: float = _START_SPAN):
         check(teacher in TEACHERS, "teacher", teacher, f"one of {', '.join(TEACHERS)}")
         PARAMS.check(locals())
         check(not (coast and teacher == "prior"), "coast", coast,
               "false with the a-priori teacher (coasting needs a posterior: its sources are always overdue)")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
-        self.gate = float(gate)
+        self.gate, self.beam_span = float(gate), float(beam_span)
         self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -241,8 +252,10 @@ class ProbabilisticTeacher:
         not counted as evidence about the channel (a wrong start would feed itself back into lambda),
         and `dokf` and `pt-post` make them by the start beam (`_start_beam`)."""
         self._started = True
-        self._start_end = y + 2.0 * float(np.max(self.priors.period))
-        self._settled = self._start_end if self._guessed.any() else -math.inf
+        longest = float(np.max(self.priors.period))
+        self._start_end = y + self.beam_span * longest
+        # rates are learnt after two longest periods whatever the beam's span: the acquisition's guesses are over
+        self._settled = y + _START_SPAN * longest if self._guessed.any() else -math.inf
         if self.teacher == "decision" or (self.teacher == "posterior" and self._located()):
             self._beam = [(0.0, self._save())]
 
@@ -487,7 +500,7 @@ class PTPost(ProbabilisticTeacher):
     """`pt-post`: MK94 IV, the source drawn from the a-posteriori probabilities (4.1)-(4.3), after an
     acquisition by the start beam when the priors locate the periods (module doc)."""
 
-    PARAMS = PARAMS.changed(coast=None)
+    PARAMS = PARAMS.only("label", "seed", "coast", "gate", "reset_after", "rates").changed(coast=None)
 
     def __init__(self, label: str = "sample", seed: int | None = None, coast: bool | None = None, gate: float = 5.0,
                  reset_after: int | None = None, rates: str = "priors"):
@@ -498,7 +511,8 @@ class DOKFTracker(ProbabilisticTeacher):
     """`dokf`: the PT's tracker taught by its own MAP decisions, with DM89's Theorem 1 spurious test,
     coasting through missed arrivals and dropout resets (deterministic: it draws nothing)."""
 
-    PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates").changed(coast=True, reset_after=4)
+    PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates", "beam_span").changed(coast=True, reset_after=4)
 
-    def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors"):
-        super().__init__("decision", "map", None, coast, gate, reset_after, rates)
+    def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors",
+                 beam_span: float = _START_SPAN):
+        super().__init__("decision", "map", None, coast, gate, reset_after, rates, beam_span)

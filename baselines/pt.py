@@ -68,9 +68,9 @@ would otherwise feed itself back into lambda.
 
 Start beam (`dokf`).  Which fresh track a first pulse starts is a guess that a single decision gets
 wrong too often (then every track holds another source's pulses: 0.002 of the labels right on one
-test file), so until two longest periods have passed `dokf` keeps the 32 best labellings (each
-extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs them), labels each
-pulse by the best at once (lag 0), and then goes on from the best alone.  Known phases too: with the
+test file), so until two longest periods have passed (`beam_span`) `dokf` keeps the 32 best
+labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs them),
+labels each pulse by the best at once (lag 0), and then goes on from the best alone.  Known phases too: with the
 priors' default phase deviation (5 % of the period) the first arrivals of dense sources fall in each
 other's gates, and a single decision lost 0.8 of core-v0's 8-source labels (issue #22).
 A labelling is kept only if it predicts something the better ones kept do not: one whose next two
@@ -92,7 +92,7 @@ labelling: on the independent generator's dense files (8 sources, jitter 0.06 of
 clean channel, validation seeds 101-110) single decisions after the start lose the tracks one after
 another on half the files (0.15-0.18 of the labels right with the rates stated 0; mean 0.43, 0.60 with
 them unknown), the whole-episode beam holds them (mean 0.76 both ways, worst file 0.67; fdp 0.69), at
-about 40 times the time per pulse (docs/experiments.md, 'Dense scenes').
+30-40 times the time per pulse (docs/experiments.md, 'Dense scenes').
 
 Acquisition (`pt-post`).  The teacher's draw is as blind as a single decision to which fresh track a
 first pulse starts.  On the independent generator's dense files (8 sources, jitter 0.01 of the shortest
@@ -184,15 +184,15 @@ PARAMS = declare(
           "(dropout; none: never, or 4 with coast=none)", low=1, optional=True),
     Param("rates", str, "priors", "priors: the priors' miss/spurious rates (unknown ones estimated); estimate: both "
           "estimated online", choices=RATES),
-    Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides by "
-          "its beam of labellings (1e9: the whole episode; module doc, 'Start beam')", low=0, low_open=True),
+    Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides "
+          "by its beam of labellings (1e9: the whole episode; module doc, 'Start beam')", low=0, low_open=True),
 )
 
 
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
     (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
-    priors state a clean channel), `gate`, `reset_after`, `rates`: see the module doc.  `seed`: the
+    priors state a clean channel), `gate`, `reset_after`, `rates`, `beam_span`: see the module doc.  `seed`: the
     policy's own seed (default: the runner's policy_seed).  Declared: `PARAMS` (and each subclass's)."""
 
     lag = 0

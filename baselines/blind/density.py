@@ -34,6 +34,14 @@ def _sq_dists(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return out
 
 
+def _sum_sq(gap: np.ndarray) -> np.ndarray:
+    """Squares of the last axis summed in column order (as `_sq_dists` sums them)."""
+    out = gap[..., 0] * gap[..., 0]
+    for k in range(1, gap.shape[-1]):
+        out += gap[..., k] * gap[..., k]
+    return out
+
+
 class _Leaves:
     """The points cut into leaves of at most SIZE by repeated median splits of the widest column (a
     k-d tree's leaves), kept leaf after leaf, with each leaf's bounding box.  A leaf needs distances only
@@ -66,20 +74,12 @@ class _Leaves:
 
     def box_gaps(self, leaf: int) -> np.ndarray:
         """Squared distance from leaf's box to every leaf's box (0 where they overlap)."""
-        gap = np.maximum(np.maximum(self.low - self.high[leaf], self.low[leaf] - self.high), 0.0)
-        out = gap[:, 0] * gap[:, 0]
-        for k in range(1, gap.shape[1]):
-            out += gap[:, k] * gap[:, k]
-        return out
+        return _sum_sq(np.maximum(np.maximum(self.low - self.high[leaf], self.low[leaf] - self.high), 0.0))
 
     def point_gaps(self, leaf: int) -> np.ndarray:
         """(rows, leaves) squared distance from each of leaf's points to every leaf's box."""
         p = self.x[self.rows(leaf)][:, None, :]
-        gap = np.maximum(np.maximum(self.low[None] - p, p - self.high[None]), 0.0)
-        out = gap[..., 0] * gap[..., 0]
-        for k in range(1, gap.shape[2]):
-            out += gap[..., k] * gap[..., k]
-        return out
+        return _sum_sq(np.maximum(np.maximum(self.low[None] - p, p - self.high[None]), 0.0))
 
     def rows(self, leaf: int) -> slice:
         return slice(int(self.start[leaf]), int(self.start[leaf + 1]))

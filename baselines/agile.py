@@ -255,7 +255,6 @@ class PathSearch:
         self.history = np.zeros((1, self.lag + 1), dtype=np.int64)  # labels of pulses k - lag .. k
         self.k = -1  # last pulse seen
         self.steps = 0
-        self._m = m
         self._mixing = bool((self.arrays.same_family & ~np.eye(m, dtype=bool)).any())  # any IMM family
         self._stay = (1 - self.switch) * np.eye(m)  # `_mix`'s constant terms
         self._tiny = np.eye(m) * 1e-300
@@ -490,8 +489,7 @@ class PathSearch:
         the mix of the family's states weighted by p_ij mu_i, with p = (1 - switch) I + switch U.  b:
         the states (R, M, ...) of sources `src`; returns the mixed states."""
         mu = np.exp(logw)  # (R, M)
-        valid = alive
-        trans = self._stay + self.switch * valid[:, None, :] / valid.sum(axis=1)[:, None, None]
+        trans = self._stay + self.switch * alive[:, None, :] / alive.sum(axis=1)[:, None, None]
         wij = np.where(self.arrays.same_family[src], trans * mu[:, :, None], 0.0)  # (R, i, j)
         total = wij.sum(axis=1, keepdims=True)
         if not (total > 0).all():

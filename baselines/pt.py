@@ -92,7 +92,12 @@ labelling: on the independent generator's dense files (8 sources, jitter 0.06 of
 clean channel, validation seeds 101-110) single decisions after the start lose the tracks one after
 another on half the files (0.15-0.18 of the labels right with the rates stated 0; mean 0.43, 0.60 with
 them unknown), the whole-episode beam holds them (mean 0.76 both ways, worst file 0.67; fdp 0.69), at
-30-40 times the time per pulse (docs/experiments.md, 'Dense scenes').
+16-37 times the time (docs/experiments.md, 'Dense scenes').  `beam_margin` (nats; default none) makes that
+beam cheap where one labelling is plainly best: after the start it keeps only the labellings within the
+margin of the best, so a clear pulse leaves one and the beam costs a single decision's work plus its
+copies; at 3 or 5 the dense files keep as many labels right at 1.4-5.5 times default dokf's time.
+The spurious floor (`_spurious_prob`) applies after the start's two longest periods however long the
+beam runs.
 
 Acquisition (`pt-post`).  The teacher's draw is as blind as a single decision to which fresh track a
 first pulse starts.  On the independent generator's dense files (8 sources, jitter 0.01 of the shortest
@@ -186,6 +191,9 @@ PARAMS = declare(
           "estimated online", choices=RATES),
     Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides "
           "by its beam of labellings (1e9: the whole episode; module doc, 'Start beam')", low=0, low_open=True),
+    Param("beam_margin", float, None, "dokf: after the start (two longest prior periods), the beam keeps only "
+          "labellings within this many nats of the best (none: its places alone bound it; module doc, 'Start beam')",
+          low=0, low_open=True, optional=True),
 )
 
 
@@ -199,13 +207,13 @@ class ProbabilisticTeacher:
 
     def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
                  gate: float = 5.0, reset_after: int | None = None, rates: str = "priors",
-                 beam_span: float = _START_SPAN):
+                 beam_span: float = _START_SPAN, beam_margin: float | None = None):
         check(teacher in TEACHERS, "teacher", teacher, f"one of {', '.join(TEACHERS)}")
         PARAMS.check(locals())
         check(not (coast and teacher == "prior"), "coast", coast,
               "false with the a-priori teacher (coasting needs a posterior: its sources are always overdue)")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
-        self.gate, self.beam_span = float(gate), float(beam_span)
+        self.gate, self.beam_span, self.beam_margin = float(gate), float(beam_span), beam_margin
         self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -240,6 +248,7 @@ class ProbabilisticTeacher:
         self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
         self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
         self._start_end = math.inf  # the start (two longest periods from the first pulse) ends then
+        self._acquired = math.inf
         self._started = False
         self._beam: list[tuple[float, _TrackState]] | None = None  # the start's labellings (`_start_beam`)
         self._rng = policy_rng(info, self.seed)
@@ -254,6 +263,7 @@ class ProbabilisticTeacher:
         self._started = True
         longest = float(np.max(self.priors.period))
         self._start_end = y + self.beam_span * longest
+        self._acquired = y + _START_SPAN * longest  # the acquisition's guesses are over: the beam's margin applies
         # rates are learnt after two longest periods whatever the beam's span: the acquisition's guesses are over
         self._settled = y + _START_SPAN * longest if self._guessed.any() else -math.inf
         if self.teacher == "decision" or (self.teacher == "posterior" and self._located()):
@@ -285,7 +295,7 @@ class ProbabilisticTeacher:
         spurious.  Not during the start (two longest periods): there a far pulse says a prior is wrong,
         and taking it is how the KF learns the period (MK94 V-B-2's x_{1|0} = (60, 96) for periods
         (11, 80): 0.20 of the labels right with the floor from the first pulse, 0.84 without)."""
-        return max(self._lam, _LAM_FLOOR) if self.coast and y > self._start_end else self._lam
+        return max(self._lam, _LAM_FLOOR) if self.coast and y > self._acquired else self._lam
 
     def _coast(self, y: float) -> None:
         """VI-C-3: skip the missed arrivals of every source overdue at y (`coast`), resetting a source
@@ -457,10 +467,13 @@ class ProbabilisticTeacher:
                 children.append((score + math.log(lam) + float(self.log_pi[c.source[b]])
                                  - 0.5 * (math.log(spread) + e * e / spread), parent, c, -1))
         children.sort(key=lambda ch: -ch[0])
+        floor = children[0][0] - self.beam_margin if self.beam_margin is not None and y > self._acquired else -math.inf
         beam = []
         size = _START_BEAM[self.teacher]
         ahead = np.empty((size, 2, _AHEAD_STEPS.size, self.n))  # the kept labellings' `_ahead`
         for score, parent, c, r in children:
+            if score < floor:
+                break
             self._load(parent)
             if r >= 0:
                 self._apply(c, r, False)
@@ -511,8 +524,9 @@ class DOKFTracker(ProbabilisticTeacher):
     """`dokf`: the PT's tracker taught by its own MAP decisions, with DM89's Theorem 1 spurious test,
     coasting through missed arrivals and dropout resets (deterministic: it draws nothing)."""
 
-    PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates", "beam_span").changed(coast=True, reset_after=4)
+    PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates", "beam_span", "beam_margin").changed(
+        coast=True, reset_after=4)
 
     def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors",
-                 beam_span: float = _START_SPAN):
-        super().__init__("decision", "map", None, coast, gate, reset_after, rates, beam_span)
+                 beam_span: float = _START_SPAN, beam_margin: float | None = None):
+        super().__init__("decision", "map", None, coast, gate, reset_after, rates, beam_span, beam_margin)

@@ -110,6 +110,21 @@ def test_coasting_and_resets_keep_tracks_alive():
     assert max(thrown["pt-post:coast=true,reset_after=4"], thrown["pt-post"], thrown["dokf"]) < 0.05, thrown
 
 
+def test_dokf_beam_margin_keeps_only_close_labellings():
+    """On a clear two-source train the whole-episode beam keeps its 32 places full, with a margin of 5 nats
+    one labelling is left after the start (every rival is a wrong take, far behind), and the labels are
+    the whole-episode beam's."""
+    ep = simulate(CLEAN_TWO, 0)
+    full, pruned = make_policy("dokf:beam_span=1e9"), make_policy("dokf:beam_span=1e9,beam_margin=5")
+    labels = {}
+    for name, policy in (("full", full), ("pruned", pruned)):
+        labels[name] = _run(policy, ep, 0)[0]
+    assert len(full._beam) == 32 and len(pruned._beam) == 1
+    np.testing.assert_array_equal(labels["full"], labels["pruned"])
+    with pytest.raises(DeintError, match="beam_margin"):
+        make_policy("dokf:beam_margin=0")
+
+
 def test_policy_parameters_are_checked():
     with pytest.raises(DeintError, match="label"):
         make_policy("pt-post:label=mode")

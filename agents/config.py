@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from deint_env.errors import check
 
 
 @dataclass(frozen=True)
@@ -35,3 +38,15 @@ class TrainResult:
     timesteps: int
     seconds: float
     evaluations: list[dict[str, Any]] = field(default_factory=list)
+
+
+def hp_int(hp: dict[str, Any], key: str, default: int, hi: int, where: str, prefix: str = "") -> int:
+    """The YAML entry's `key` as an integer in [1, hi] (a whole float such as 1e6 too), else one line."""
+    value = hp.get(key, default)
+    check(whole(value, hi), f"{where}: {prefix}{key}", value, f"an integer in [1, {hi:g}]")
+    return int(value)
+
+
+def whole(value: Any, hi: int) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) \
+        and float(value).is_integer() and 1 <= value <= hi

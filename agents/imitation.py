@@ -32,10 +32,10 @@ from gymnasium import spaces
 from tqdm import tqdm
 
 from agents.checkpoint import load_checkpoint
-from agents.config import TrainConfig, TrainResult
+from agents.config import TrainConfig, TrainResult, hp_int
 from agents.networks import TrackPolicy, action_scores, architecture_of, load_weights
 from deint_env.envs.tokens import make_tokens_vector_env
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, check
 from deint_env.features import TrackLayout
 from deint_env.labels import SPURIOUS_PRED
 
@@ -61,6 +61,14 @@ class DaggerParams:
         unknown = sorted(set(entry) - known)
         if unknown:
             raise DeintError(f"dagger hyper-parameter {unknown[0]!r} is unknown; known: {', '.join(sorted(known))}")
+        for key, hi in (("n_envs", 4096), ("rollout_steps", 10**6), ("epochs", 1000), ("batch_size", 10**6),
+                        ("buffer", 10**18), ("consistency_window", 10**6)):
+            hp_int(entry, key, 1, hi, "dagger hyper-parameters")  # 1: the default is not looked at
+        for key, lo, hi in (("learning_rate", 0.0, 1.0), ("beta_decay", 0.0, 1.0), ("consistency_weight", 0.0, 1e6)):
+            value = entry.get(key, getattr(cls, key))
+            check(isinstance(value, (int, float)) and not isinstance(value, bool) and lo <= value <= hi
+                  and (value > 0 or key != "learning_rate"), f"dagger hyper-parameters: {key}", value,
+                  f"a number in {'(' if key == 'learning_rate' else '['}{lo:g}, {hi:g}]")
         return cls(**{k: v for k, v in entry.items() if k in cls.__dataclass_fields__})
 
 

@@ -33,14 +33,16 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecMonitor
 
 from agents.checkpoint import CheckpointMeta, load_checkpoint, save_checkpoint
-from agents.config import TrainConfig, TrainResult
+from agents.config import TrainConfig, TrainResult, hp_int, whole
 from agents.experts import TRUTH
 from agents.networks import (MaskableTrackPolicy, RecurrentTrackPolicy, TrackDQNPolicy, TrackPolicy, action_scores,
                              architecture_of, load_weights, recurrent_scores, weights_of)
 from agents.tb import next_run_dir, tensorboard_available, writer
 from agents.vec_env import TokenVecEnv
 from deint_env.envs.mixed import select_entries, split_seeds
-from deint_env.errors import DeintError
+from deint_env.envs.vector import MAX_ENVS
+from deint_env.errors import DeintError, check
+from deint_env.features import MAX_TRACKS
 from deint_env.suites import load_suite
 
 ALGOS = ("ppo", "maskable-ppo", "recurrent-ppo", "a2c", "dqn", "dagger", "bc", "seq", "lmht")
@@ -49,6 +51,7 @@ HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 PACKAGE_DIRS = tuple(Path(__file__).resolve().parent.parent / d for d in ("agents", "deint_env", "baselines"))
 # Keys of a YAML entry that are not the algorithm's own keyword arguments (as in rl-zoo).
 RUN_KEYS = ("n_envs", "n_timesteps", "policy", "max_tracks")
+MAX_D_MODEL = 1024  # the track network's width: its largest layers hold d_model^2 weights (4 MB at 1024)
 
 
 def _algo_class(algo: str):
@@ -76,7 +79,9 @@ def load_hyperparams(algo: str, keys: list[str], path: Path | None = None) -> tu
     if not path.is_file():
         raise DeintError(f"hyper-parameter file {path} does not exist")
     try:
-        table = yaml.safe_load(path.read_text())
+        table = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise DeintError(f"{path}: is not UTF-8 text; a hyper-parameter file is YAML") from None
     except yaml.YAMLError as e:
         raise DeintError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(table, dict):
@@ -88,6 +93,21 @@ def load_hyperparams(algo: str, keys: list[str], path: Path | None = None) -> tu
                 raise DeintError(f"{path}: entry {key!r} must be a mapping")
             return key, dict(entry)
     raise DeintError(f"{path} has no entry for {', '.join(keys)} and no 'default'")
+
+
+def check_policy_kwargs(kwargs: Any, where: str) -> dict[str, Any]:
+    """The entry's policy_kwargs: a mapping whose track-network sizes are bounded before any weight is made."""
+    check(isinstance(kwargs, dict), f"{where}: policy_kwargs", kwargs, "a mapping of the network's arguments")
+    d_model = hp_int(kwargs, "d_model", 64, MAX_D_MODEL, where, "policy_kwargs.")
+    heads = hp_int(kwargs, "heads", 4, d_model, where, "policy_kwargs.")
+    check(d_model % heads == 0, f"{where}: policy_kwargs.heads", heads, f"a divisor of d_model={d_model}")
+    hp_int(kwargs, "lstm_hidden_size", 64, MAX_D_MODEL, where, "policy_kwargs.")
+    hp_int(kwargs, "n_lstm_layers", 1, 16, where, "policy_kwargs.")
+    arch = kwargs.get("net_arch", [])
+    layers = [arch.get(k, []) for k in ("pi", "vf", "qf")] if isinstance(arch, dict) else [arch]
+    check(all(isinstance(v, list) and all(whole(w, MAX_D_MODEL) for w in v) for v in layers),
+          f"{where}: policy_kwargs.net_arch", arch, f"lists of layer widths, integers in [1, {MAX_D_MODEL}]")
+    return dict(kwargs)
 
 
 def _check_out(out: Path, into_package: bool) -> Path:
@@ -171,12 +191,11 @@ class _Run:
         self.max_labels = max(e.spec.n_labels for _, e in entries)
         self.blind = any(e.spec.blind for _, e in entries)
         self.hp_key, hp = load_hyperparams(config.algo, _hyperparam_keys(config), config.hyperparams_file)
-        self.n_envs = int(config.n_envs or hp.get("n_envs", 8))
-        self.timesteps = int(config.timesteps or float(hp.get("n_timesteps", 1e6)))
-        self.max_tracks = int(hp.get("max_tracks", 8))
-        if self.max_labels > self.max_tracks:
-            self.max_tracks = self.max_labels
-        self.policy_kwargs = dict(hp.get("policy_kwargs", {}))
+        where = f"hyper-parameters {self.hp_key!r} for {config.algo}"
+        self.n_envs = config.n_envs or hp_int(hp, "n_envs", 8, MAX_ENVS, where)
+        self.timesteps = config.timesteps or hp_int(hp, "n_timesteps", 10**6, 10**15, where)
+        self.max_tracks = max(hp_int(hp, "max_tracks", 8, MAX_TRACKS, where), self.max_labels)
+        self.policy_kwargs = check_policy_kwargs(hp.get("policy_kwargs", {}), where)
         self.algo_kwargs = {k: v for k, v in hp.items() if k not in RUN_KEYS and k != "policy_kwargs"}
         self.env_kwargs = dict(suite=config.suite, scenarios=list(config.scenarios) or None,
                                tags=list(config.tags) or None, lag=config.lag, max_tracks=self.max_tracks)
@@ -245,9 +264,10 @@ def train(config: TrainConfig) -> TrainResult:
     run = _Run(config)
     if config.algo in IMITATION:
         from agents.experts import make_expert
-        from agents.imitation import dagger
+        from agents.imitation import DaggerParams, dagger
 
         expert = make_expert(config.expert)  # an unknown spec fails before anything is written
+        DaggerParams.from_yaml({**run.algo_kwargs, "policy_kwargs": run.policy_kwargs, "n_envs": run.n_envs})
         if config.expert != TRUTH and run.blind:
             raise DeintError(f"--expert {config.expert!r} imitates anchored labels; blind scenarios need --expert truth")
         run.out.mkdir(parents=True, exist_ok=True)
@@ -272,8 +292,8 @@ def train(config: TrainConfig) -> TrainResult:
         try:
             model = algo_cls(policy_cls, venv, seed=config.seed, device="cpu", tensorboard_log=tb,
                              policy_kwargs=run.policy_kwargs, **run.algo_kwargs)
-        except TypeError as e:
-            raise DeintError(f"hyper-parameters {run.hp_key!r} for {config.algo}: {e}") from None
+        except (TypeError, ValueError) as e:  # an unknown keyword, or a value SB3 or torch refuses (lr=nan)
+            raise DeintError(f"hyper-parameters {run.hp_key!r} for {config.algo}: {str(e).splitlines()[0]}") from None
         last = run.out / "last.safetensors"
         done = 0
         if last.is_file():  # resume

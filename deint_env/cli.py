@@ -39,8 +39,8 @@ from deint_env.errors import DeintError
 from deint_env.cli_boards import _add_leaderboard, _add_tune
 from deint_env.cli_import import _add_import_sb3
 from deint_env.cli_plot import _add_plot
-from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_paths, _Parser, _policy_inputs, _run_policies,
-                                _status, read_label_file)
+from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_folders, _check_paths, _Parser, _policy_inputs,
+                                _run_policies, _status, read_label_file)
 
 # ---------------------------------------------------------------------------------------------------
 # deint simulate
@@ -544,6 +544,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from baselines.reproduce import list_experiments, run_experiment
 
     known = list_experiments()
+    _check_folders({"--out": args.out})
     if not args.name:
         print(_table(["experiment", "what"], [[k, v] for k, v in known.items()]))
         return 0
@@ -560,6 +561,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------------------------------
 # deint train
 # ---------------------------------------------------------------------------------------------------
+MAX_EVAL_EPISODES = 10_000  # validation episodes per evaluation (default 32), each evaluation is played in full
+
+
 def _add_train(sub) -> None:
     p = sub.add_parser("train", help="train a learned agent on train seeds (needs the [rl] extra)",
                        description="Train a stable-baselines3 / sb3-contrib agent (the permutation-equivariant track "
@@ -597,8 +601,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise DeintError(f"--{name.replace('_', '-')}={value} must be >= 1")
+    _check_folders({"-o": args.out})
     if args.time_budget is not None and not args.time_budget > 0:
         raise DeintError(f"--time-budget={args.time_budget} must be > 0 seconds")
+    if not 0 <= args.seed < 2**32:  # stable-baselines3 seeds numpy's legacy generator
+        raise DeintError(f"--seed={args.seed} is invalid: an integer in [0, 2^32)")
+    if args.eval_episodes > MAX_EVAL_EPISODES:
+        raise DeintError(f"--eval-episodes={args.eval_episodes} is invalid: an integer in [1, {MAX_EVAL_EPISODES}]")
     target = args.suite or (args.scenario[0].replace("/", "-") if args.scenario else "none")
     out = Path(args.out) if args.out else Path("runs") / "train" / f"{args.algo}-{target}"
     config = TrainConfig(out=out, algo=args.algo, suite=args.suite, scenarios=tuple(args.scenario),
@@ -644,6 +653,7 @@ def cmd_dataset(args: argparse.Namespace) -> int:
         raise DeintError(f"deint dataset needs {e.name}: pip install 'minari[create]'") from None
     if args.max_tracks < 1:
         raise DeintError(f"--max-tracks={args.max_tracks} must be >= 1")
+    _check_folders({"--root": args.root})
     config = DatasetConfig(args.dataset_id, policy=args.policy, suite=args.suite, scenarios=tuple(args.scenario),
                            tags=tuple(t for t in args.tags.split(",") if t), split=args.split, seeds=args.seeds,
                            env=args.env, max_tracks=args.max_tracks, root=Path(args.root) if args.root else None)

@@ -10,7 +10,7 @@ from typing import Any
 
 from deint_env.errors import DeintError
 
-from deint_env.cli_util import _check_paths, _policy_inputs, _run_policies, _status
+from deint_env.cli_util import _check_folders, _check_paths, _policy_inputs, _run_policies, _status
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -41,6 +41,7 @@ def _add_tune(sub) -> None:
 def cmd_tune(args: argparse.Namespace) -> int:
     from deint_env.tune import tune
 
+    _check_folders({"--work": args.work})
     result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
                   eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
                   scenarios=tuple(s for s in args.scenarios.split(",") if s), progress=not args.no_progress,
@@ -162,9 +163,13 @@ def cmd_leaderboard(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise DeintError(f"--workers={args.workers} is invalid: an integer >= 1")
     _check_reps(args.reps)
+    _check_folders({"--root": args.root})
     named = _run_policies(args) if args.policy or args.policies else None
     if args.all:  # each board as it was built: its own policy specs (parameters included) and scope
         runs = []
+        if not published_suites(args.root):  # else --all would do nothing and say nothing
+            raise DeintError(f"--root {args.root}: holds no published leaderboard (a SUITE/leaderboard.json of a "
+                             f"known suite); name the leaderboards folder, or build one with --suite SUITE")
         for suite in published_suites(args.root):
             folder = Path(args.root) / suite
             runs.append((Scope.of_folder(folder, suite), named or board_policies(folder)))
@@ -187,6 +192,7 @@ def cmd_leaderboard_submit(args: argparse.Namespace) -> int:
     from deint_env.leaderboard import submit
 
     _check_reps(args.reps)
+    _check_folders({"--root": args.root})
     board_dir = Path(args.root) / args.suite
     if Path(args.file).resolve().parent == board_dir.resolve():
         raise DeintError(f"FILE {args.file} lies in the leaderboard directory {board_dir}, whose files submit "

@@ -80,9 +80,15 @@ def cmd_plot(args: argparse.Namespace) -> int:
     panels = [(title, kind, ids[:n]) for title, kind, ids in panels if ids is not None]
     if not panels:
         panels = [("no labels, no truth", "pulse", np.zeros(n, np.int64))]
-    fig = _figure(Figure, toa[:n], panels, f"{Path(args.pulses).name}: {n} of {toa.size} pulses")
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=INCH, metadata={"Software": None})  # no metadata: reruns give equal bytes
+    try:
+        with np.errstate(over="ignore"):  # no metadata (below): reruns give equal bytes
+            fig = _figure(Figure, toa[:n], panels, f"{Path(args.pulses).name}: {n} of {toa.size} pulses")
+            fig.savefig(buf, format="png", dpi=INCH, metadata={"Software": None})
+    except OverflowError:  # a log axis over ~280 decades: matplotlib's tick positions overflow to inf
+        dtoa = np.diff(toa[:n])
+        raise DeintError(f"{args.pulses}: its ΔTOAs run from {dtoa[dtoa > 0].min():g} to {dtoa.max():g}, too wide "
+                         f"a range for a log axis; draw fewer pulses (--first N) or rescale the TOAs") from None
     formats.write_bytes(args.output, buf.getvalue())
     coloured = " and ".join(f"{kind}s" for _, kind, _ in panels if kind != "pulse") or "nothing (no labels or truth)"
     _status(f"deint: plotted {n} pulses coloured by {coloured} -> {args.output}")

@@ -24,13 +24,23 @@ def _decimal_int(text: str) -> int:
     return int(text)
 
 
+def _decimal_float(text: str) -> float:
+    """float() of an ASCII decimal number (or inf, nan): float() also reads '1_0' as 10 and non-ASCII digits."""
+    if not re.fullmatch(r"\s*[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?\s*|\s*[+-]?(inf|infinity|nan)\s*",
+                        text, re.IGNORECASE):
+        raise ValueError(text)
+    return float(text)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors as one line, like every other error of `deint`; `type=int` arguments
-    take decimal integers only (argparse's message still says "invalid int value")."""
+    """argparse with usage errors as one line, like every other error of `deint`; `type=int` and
+    `type=float` arguments take ASCII decimal numbers only (argparse's message still says "invalid int
+    value" or "invalid float value")."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.register("type", int, _decimal_int)
+        self.register("type", float, _decimal_float)
 
     def error(self, message: str):
         self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
@@ -58,6 +68,14 @@ def _check_paths(inputs: dict[str, str | None], outputs: dict[str, str | None]) 
                                  f"name a different file for each input and output")
     for _, path in named_out:  # a directory or a FIFO refused now, not after the policy has played
         check_output(path)
+
+
+def _check_folders(folders: dict[str, str | None]) -> None:
+    """Refuse an empty folder option: pathlib reads '' as '.', so the files would land in the current
+    directory.  Keys are the options that name the folders (None: not given)."""
+    for opt, folder in folders.items():
+        if folder == "":
+            raise DeintError(f"{opt} {folder!r}: the path is empty; give a folder name")
 
 
 def _policy_inputs(specs: list[str]) -> dict[str, str]:

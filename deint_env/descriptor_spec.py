@@ -5,6 +5,7 @@ from deint_env.scenario (which re-exports both) so that module stays one reading
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,6 +16,8 @@ from deint_env.spec_fields import Param, Range, _floats, _number, _param, _param
 SCANS = ("none", "circular", "sector")  # DescriptorSpec.scan
 BEAMS = ("gaussian", "sinc2")  # main-lobe shapes of an emitter's or a scanning receiver's antenna
 RECEIVER_MODES = ("staring", "scanning")  # ReceiverSpec.mode
+MAX_DESCRIPTOR = 1e30  # the largest spread, hop or level: beyond, the drawn descriptors overflow to inf
+MIN_SCAN_PERIOD = 1e-9  # an antenna turning faster has TOA / period overflow (the scenario's MIN_PERIOD)
 
 
 def _check_beam(what: str, beamwidth: float, beam: str, sidelobe_db: float) -> None:
@@ -27,8 +30,9 @@ def _check_beam(what: str, beamwidth: float, beam: str, sidelobe_db: float) -> N
 
 def _levels_tuple(value: Any, what: str, positive: bool) -> tuple[float, ...]:
     v = _floats(value, what)
-    check(len(v) != 1 and (not positive or all(x > 0 for x in v)), what, value,
-          "empty (none) or at least two " + ("positive " if positive else "") + "numbers")
+    check(len(v) != 1 and (not positive or all(x > 0 for x in v)) and all(abs(x) <= MAX_DESCRIPTOR for x in v),
+          what, value, "empty (none) or at least two " + ("positive " if positive else "") +
+          f"numbers of magnitude at most {MAX_DESCRIPTOR:g}")
     return v
 
 
@@ -68,8 +72,10 @@ class DescriptorSpec:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         set_(self, "frequency", _param(self.frequency, "descriptors.frequency", positive=True))
-        set_(self, "frequency_std", _number(self.frequency_std, "descriptors.frequency_std", 0.0))
+        set_(self, "frequency_std", _number(self.frequency_std, "descriptors.frequency_std", 0.0, MAX_DESCRIPTOR))
         set_(self, "frequency_hops", _levels_tuple(self.frequency_hops, "descriptors.frequency_hops", False))
+        check(self.frequency_span()[0] > 0, "descriptors.frequency_hops", list(self.frequency_hops),
+              f"offsets that keep every frequency positive (the lowest centre is {_param_low(self.frequency):g})")
         set_(self, "pulse_width", _param(self.pulse_width, "descriptors.pulse_width", positive=True))
         set_(self, "pulse_width_levels", _levels_tuple(self.pulse_width_levels, "descriptors.pulse_width_levels",
                                                        True))
@@ -81,8 +87,9 @@ class DescriptorSpec:
         check(self.scan in SCANS, "descriptors.scan", self.scan, f"one of {', '.join(SCANS)}")
         set_(self, "scan_period", _param(self.scan_period, "descriptors.scan_period", nonneg=True))
         scans = self.scan != "none"
-        check(_param_low(self.scan_period) > 0 if scans else self.scan_period == 0, "descriptors.scan_period",
-              self.scan_period, f"{self.scan} scan needs " + ("a period > 0 (TOA units)" if scans else "0"))
+        check(_param_low(self.scan_period) >= MIN_SCAN_PERIOD if scans else self.scan_period == 0,
+              "descriptors.scan_period", self.scan_period,
+              f"{self.scan} scan needs " + (f"a period >= {MIN_SCAN_PERIOD:g} (TOA units)" if scans else "0"))
         set_(self, "sector", _number(self.sector, "descriptors.sector", 0.0, 360.0))
         check(0 < self.sector < 360 if self.scan == "sector" else self.sector == 0, "descriptors.sector",
               self.sector, "a sector scan needs its width in (0, 360) degrees" if self.scan == "sector"
@@ -128,7 +135,8 @@ class ReceiverSpec:
         check(self.mode in RECEIVER_MODES, "receiver.mode", self.mode, f"one of {', '.join(RECEIVER_MODES)}")
         for name in ("threshold", "frequency_noise_std", "pulse_width_noise_std", "aoa_noise_std", "scan_period",
                      "beamwidth"):
-            object.__setattr__(self, name, _number(getattr(self, name), f"receiver.{name}", 0.0))
+            hi = MAX_DESCRIPTOR if name.endswith("noise_std") else math.inf
+            object.__setattr__(self, name, _number(getattr(self, name), f"receiver.{name}", 0.0, hi))
         object.__setattr__(self, "sidelobe_db", _number(self.sidelobe_db, "receiver.sidelobe_db"))
         if self.mode == "scanning":
             check(self.scan_period > 0, "receiver.scan_period", self.scan_period,

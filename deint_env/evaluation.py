@@ -121,6 +121,11 @@ def evaluate(policy: Any, *, suite: str | None = None, scenarios: Sequence[str] 
 
     if (suite is None) == (not scenarios):
         raise DeintError("name a suite= or some scenarios= (SUITE/SCENARIO names), not both")
+    if not isinstance(progress, (bool, np.bool_)):
+        raise DeintError(f"progress={progress!r} is invalid: True or False")
+    if isinstance(policy, type):  # its lag, reset and act are unbound functions: it would play as nonsense
+        raise DeintError(f"policy={policy.__name__} is a class; pass a policy object ({policy.__name__}(...)) or a "
+                         f"policy spec string")
     if isinstance(scenarios, str):
         raise DeintError(f"scenarios={scenarios!r} is invalid: a list of SUITE/SCENARIO names")
     if suite is not None and "/" not in suite:

@@ -114,6 +114,9 @@ class PolicyInfo:
     params: Any = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name or any(c in ":,=" or c.isspace() for c in self.name):
+            raise ValueError(f"policy {self.name!r}: the name is invalid: a non-empty string without ':', ',', '=' "
+                             f"or spaces (a spec is NAME:key=value,...)")
         if self.kind not in KINDS:
             raise ValueError(f"policy {self.name!r}: kind={self.kind!r} is invalid: one of {', '.join(KINDS)}")
         if not self.modes or any(m not in MODES for m in self.modes):
@@ -167,6 +170,7 @@ def _add(info: PolicyInfo) -> None:
 
 def register_policy(name: str, factory: Callable[..., Policy] | str, **metadata: Any) -> None:
     """Register a policy at run time (notebooks, tests); `metadata`: the other `PolicyInfo` fields."""
+    _load_builtin_providers()  # a shipped name is refused now, not at the next lookup
     _add(PolicyInfo(name, factory, provider="register_policy", **metadata))
 
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from deint_env.errors import DeintError, check
-from deint_env.descriptor_spec import DescriptorSpec, ReceiverSpec  # noqa: F401 -- re-exported
+from deint_env.descriptor_spec import MAX_DESCRIPTOR, DescriptorSpec, ReceiverSpec  # noqa: F401 -- re-exported
 from deint_env.spec_fields import Param, Range, _floats, _is_number, _number, _param, _param_low, _param_mean  # noqa: F401
 
 MAX_SOURCES = 128  # the TSRD's scenes hold up to 90 emitters
@@ -430,7 +430,7 @@ class ScenarioSpec:
         check(isinstance(self.description, str), "description", self.description, "must be a string")
         for name, hi in (("toa_jitter_std", math.inf), ("pri_jitter_std", math.inf), ("missing_prob", 0.9),
                          ("coincidence_resolution", math.inf), ("spurious_rate", 10.0),
-                         ("amplitude_noise_std", math.inf)):
+                         ("amplitude_noise_std", MAX_DESCRIPTOR)):
             v = getattr(self, name)
             check(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 <= v <= hi,
                   name, v, f"a number in [0, {hi}]")
@@ -444,7 +444,7 @@ class ScenarioSpec:
               f"at most a third of the smallest PRI ({min_period:g}) so intervals stay positive")
         # a drifting period shrinks as alpha^n (<= 100-fold, below) and random-walks: allow 6 sigma of
         # the walk, down to the generator's clip at 5 % of the period
-        shrunk = min([max(0.05, min(1.0, s.modulation.alpha ** self.n_pulses)) * _param_low(s.period)
+        shrunk = min([max(0.05, min(1.0, s.modulation.alpha) ** self.n_pulses) * _param_low(s.period)
                       - 6 * s.modulation.drift_std * math.sqrt(self.n_pulses)
                       for s in srcs if s.modulation.kind == "drifting"] + [min_period])
         shrunk = max(shrunk, 0.05 * min(_param_low(s.period) for s in srcs))

@@ -45,7 +45,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from deint_env.episode import Episode, Truth
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 from deint_env.receiver import detect_pulses
 from deint_env.scenario import ScenarioSpec, SourceSpec
 from deint_env.sim.descriptors import draw_emitters, heard_fraction
@@ -81,6 +81,8 @@ def simulate(spec: ScenarioSpec, seed: int) -> Episode:
 
 def simulate_many(spec: ScenarioSpec, seeds: Sequence[int]) -> list[Episode]:
     """One episode of `spec` per seed, each bit-identical to `simulate(spec, seed)`, made together."""
+    if not isinstance(spec, ScenarioSpec):
+        raise DeintError(f"spec={shown(spec)} is invalid: a ScenarioSpec (deint_env.resolve_scenario(NAME) gives one)")
     seeds = [check_seed(s) for s in seeds]
     size = max(1, _BATCH_PULSES // spec.n_pulses)
     episodes = [episode for start in range(0, len(seeds), size)

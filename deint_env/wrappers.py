@@ -229,6 +229,16 @@ class SplitSeeds(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
 
 # ---- token features (layout 2, `deint_env.features`): any number of sources, blind too -------------
+def _token_actions(actions: Any, n: int, m: int) -> np.ndarray:
+    """`n` token actions as integers in [0, m] (m = spurious), as the action space has them; anything
+    else (a float, a boolean, a track past m or below 0) is one line, not a silent spurious label."""
+    a = np.asarray(actions)
+    if a.dtype.kind not in "iu" or a.size != n or ((a < 0) | (a > m)).any():
+        what = "a track" if n == 1 else f"{n} tracks"
+        raise DeintError(f"action={actions!r} is invalid: {what} in [0, {m}] ({m} = spurious)")
+    return a.reshape(n)
+
+
 class TrackTokens(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Raw observations -> the per-track token observation of `deint_env.features` (a Dict of
     `tracks` (M, F), `mask` (M,) and `pulse` (G,), or with `flat=True` one Box), for anchored and blind
@@ -260,9 +270,10 @@ class TrackTokens(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._observe(obs), info
 
     def step(self, action):
-        label = int(self.features.env_actions(np.array([action]), self._spurious)[0])
+        action = _token_actions(action, 1, self.layout.max_tracks)
+        label = int(self.features.env_actions(action, self._spurious)[0])
         obs, reward, terminated, truncated, info = self.env.step(label)
-        self.features.label(np.array([action]))
+        self.features.label(action)
         return self._observe(obs), reward, terminated, truncated, info
 
     def action_masks(self) -> np.ndarray:
@@ -304,7 +315,7 @@ class TrackTokensVector(gym.vector.VectorWrapper):
         return self._observe(obs), infos
 
     def step(self, actions):
-        actions = np.asarray(actions)
+        actions = _token_actions(actions, self.num_envs, self.layout.max_tracks)
         obs, reward, terminated, truncated, infos = self.env.step(self.features.env_actions(actions, self._spurious))
         self.features.label(actions)
         started = infos.get("_n_pulses")  # the sub-envs that began a new episode on this step

@@ -152,6 +152,8 @@ def agile_chains(t: np.ndarray, free: np.ndarray, p: SearchParams, n_found: int)
 
 def _agile_chain(t: np.ndarray, free: np.ndarray, p: SearchParams) -> Chain | None:
     tf = t[free]
+    if not p.pri_min > 0:  # coincident pulses and no TOA noise: no band of PRIs to histogram
+        return None
     edges = np.exp(np.arange(math.log(p.pri_min), math.log(p.pri_max), 0.05))
     if edges.size < 3:
         return None

@@ -20,7 +20,7 @@ import numpy as np
 
 from baselines.windowed import WindowedPolicy
 from deint_env.episode import Priors
-from deint_env.errors import NotApplicable
+from deint_env.errors import DeintError, NotApplicable
 
 DESCRIPTORS = ("frequency", "pulse_width", "aoa")  # the observation keys, MHz, us, degrees in [0, 360)
 DEGREE = 180.0 / math.pi  # the AoA plane's radius: two angles d degrees apart lie about d apart
@@ -28,6 +28,7 @@ _MAD = 1.4826  # MAD -> standard deviation for a normal sample
 # a match across windows: every descriptor within this many spreads, the PRIs within this fraction
 _MATCH_SPREADS = 4.0
 _MATCH_PRI = 0.01
+MAX_PDW = 1e150  # the largest |TOA| or |descriptor| a window is clustered with: its squares stay finite
 
 
 class PDWs(NamedTuple):
@@ -135,6 +136,12 @@ class PDWPolicy(WindowedPolicy):
 
     def _label_rows(self, rows: list[tuple[float, ...]]) -> list[int]:
         x = np.asarray(rows, dtype=np.float64)
+        big = np.argwhere(~(np.abs(x) <= MAX_PDW))
+        if big.size:  # their squared distances would overflow to inf (HDBSCAN then never ends)
+            i, j = map(int, big[0])
+            name = ("toa", *DESCRIPTORS, "amplitude")[j]
+            raise DeintError(f"the pulse at toa={float(x[i, 0])!r} has {name}={float(x[i, j])!r}; the pdw-* policies "
+                             f"cluster TOAs and descriptors of magnitude up to {MAX_PDW:g}")
         p = PDWs(x[:, 0], x[:, 1], x[:, 2], x[:, 3], x[:, 4] if self._amp else None)
         return self._to_labels(p, self.label_window(p)).tolist()
 

@@ -62,6 +62,8 @@ def check_output(path: PathLike) -> None:
         raise DeintError("cannot write '': the path is empty; give a file name")
     if os.fspath(path).endswith(os.sep):  # pathlib would drop the slash and write `out.csv` for `out.csv/`
         raise DeintError(f"cannot write {path}: it names a directory (a trailing {os.sep}); give a file name")
+    if os.sep in os.fspath(path) and os.path.basename(os.fspath(path)) in (".", ".."):  # `out.csv/.` too
+        raise DeintError(f"cannot write {path}: it names a directory (a last part . or ..); give a file name")
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:

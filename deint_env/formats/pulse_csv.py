@@ -196,6 +196,8 @@ class PulseTable:
 
 def format_pulses(episode: Episode, truth: bool = True) -> str:
     """The text of a pulse file for `episode` (with the `source` truth columns when `truth`)."""
+    if not isinstance(episode, Episode):
+        raise DeintError(f"episode={shown(episode)} is invalid: an Episode (deint_env.simulate gives one)")
     cols, header = [list(map(repr, episode.toa.tolist()))], ["toa"]
     if episode.amplitude is not None:
         cols.append(list(map(repr, episode.amplitude.tolist())))
@@ -271,6 +273,8 @@ def _merge_sources(path: Path, cells: list[str], source_cells: list[str], source
 
 def read_pulses(path: PathLike, priors: Priors) -> Episode:
     """A pulse file as an `Episode` for `priors` (truth None; source/mask zero without a source column)."""
+    if not isinstance(priors, Priors):
+        raise DeintError(f"priors={shown(priors)} is invalid: a Priors (formats.read_priors(PATH) reads one)")
     t = read_pulse_table(path)
     n = len(t)
     return Episode(scenario=Path(path).name, seed=0, toa=t.toa, amplitude=t.amplitude,
@@ -295,6 +299,10 @@ def from_file_labels(labels: np.ndarray, n_labels: int) -> np.ndarray:
 
 
 def format_labels(toa: np.ndarray, labels: np.ndarray, n_labels: int) -> str:
+    toa = np.asarray(toa, dtype=np.float64)
+    if not np.isfinite(toa).all():  # the reader refuses such a file: never write one
+        bad = toa[~np.isfinite(toa)][0]
+        raise DeintError(f"toa={float(bad)!r} is not finite; a label file's TOAs are finite numbers")
     labels = np.asarray(labels, dtype=np.int64)
     if labels.shape != toa.shape or (labels.size and not 0 <= labels.min() <= labels.max() <= n_labels):
         raise DeintError(f"{labels.size} labels for {toa.size} pulses, or a label outside [0, {n_labels}]")
@@ -315,6 +323,8 @@ def read_labels(path: PathLike, toa: np.ndarray | None = None, n_labels: int | N
     with the same TOAs; with `n_labels` every label must lie in [-1, n_labels - 1].
     """
     path = Path(path)
+    if n_labels is not None and (isinstance(n_labels, bool) or not isinstance(n_labels, (int, np.integer))):
+        raise DeintError(f"n_labels={n_labels!r} is invalid: an integer, the labels other than spurious (or None)")
     header, cols, n = _table(path, LABEL_COLUMNS, "label file")
     col = dict(zip(header, cols))
     if "label" not in col:

@@ -107,7 +107,7 @@ def board_policies(folder: Path) -> list[str]:
     name a module to run, e.g. `tdc:model=module:Name`) is refused; name it with --policies to run it."""
     specs = list(dict.fromkeys(s for s in read_board(folder).specs if not s.endswith(SUFFIX)))
     for spec in specs:
-        name = spec.split(":", 1)[0]
+        name = policies.parse_policy_spec(spec)[0]  # as it is played: ' tdc:...' is tdc
         if any(info.name == name and info.kind == "adapter" for info in policies.list_policies()):
             raise DeintError(f"{folder / BOARD}: records {spec!r}, whose parameters name code to import; a "
                              f"leaderboard file does not choose what runs: name it with --policies to rebuild it")

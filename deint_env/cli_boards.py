@@ -42,9 +42,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from deint_env.tune import tune
 
     _check_folders({"--work": args.work})
+    scenarios = tuple(n.strip() for n in args.scenarios.split(",")) if args.scenarios else ()
+    if not all(scenarios):  # ",,," named no scenario: not the whole suite
+        raise DeintError(f"--scenarios={args.scenarios!r} is invalid: scenario names separated by commas")
     result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
                   eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
-                  scenarios=tuple(s for s in args.scenarios.split(",") if s), progress=not args.no_progress,
+                  scenarios=scenarios, progress=not args.no_progress,
                   log=_status)
     preset = result.preset
     print(json.dumps({"params": preset["params"], "validation": preset["validation"]}))

@@ -93,6 +93,8 @@ class Modulation:
             check(not self.pattern, "modulation.pattern", self.pattern, f"only {'/'.join(levelled)} take a pattern")
         self._check_levels()
         needs_cycle = k in ("sliding", "sinusoidal") or (k == "dwell_switch" and not self.dwells)
+        if isinstance(self.cycle, np.integer):  # numpy's integers as the other fields take them
+            object.__setattr__(self, "cycle", int(self.cycle))
         if k == "sinusoidal":  # a wobulation's cycle need not be whole; a whole float is stored as an int
             check(_is_number(self.cycle) and 2 <= self.cycle <= MAX_CYCLE, "modulation.cycle", self.cycle,
                   f"sinusoidal needs a number >= 2 and <= {MAX_CYCLE:.0e} (pulses per cycle, not necessarily whole)")

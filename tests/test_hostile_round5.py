@@ -150,6 +150,21 @@ def test_leaderboard_all_with_no_board_under_root_says_so(capsys):
              says="--root lb: holds no published leaderboard")
 
 
+def test_a_pareto_plot_with_nothing_to_draw_warns_nothing():
+    """A board of submitted entries only (no lag, no timing) printed matplotlib's "No artists with labels
+    found to put in legend" on a successful `deint leaderboard submit`."""
+    import warnings
+
+    pytest.importorskip("matplotlib")
+    from deint_env.leaderboard.plots import pareto
+
+    row = {"division": "offline", "oracle": False, "coverage": 1.0, "lag": None, "us_per_pulse": None,
+           "score_mean": 0.5, "policy": "x (submitted)"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pareto("blind-v0", [row]).startswith(b"\x89PNG")
+
+
 # ---- scenario files: descriptors drawn beyond float64, a drift that overflowed the check -------------
 PDW_SOURCE = {"period": 100.0, "descriptors": {"frequency": 9000.0, "pulse_width": 1.0}}
 
@@ -179,6 +194,19 @@ def test_a_drift_whose_power_overflows_is_one_line(capsys):
             {"period": 10.0, "modulation": {"kind": "drifting", "alpha": 1.1}}]}, f)
     one_line(capsys, "simulate", "s.json", "--seed", "1", "-o", "o.csv", out="o.csv",
              says="modulation.alpha=1.1 is invalid: the period may change at most 100-fold")
+
+
+@pytest.mark.parametrize("scenarios", [",,,", "mk94-two-var1,,mk94-three", " "])
+def test_tune_scenarios_naming_nothing_are_refused(capsys, scenarios):
+    one_line(capsys, "tune", "fdp", "--suite", "paper-v0", "--scenarios", scenarios, "--out", "t.json",
+             out="t.json", says=f"--scenarios={scenarios!r} is invalid: scenario names separated by commas")  # all
+
+
+def test_a_numpy_integer_cycle_is_taken_as_an_int():
+    from deint_env.scenario import Modulation
+
+    m = Modulation(kind="sliding", depth=0.2, cycle=np.int64(10))  # was refused: not an int
+    assert m.cycle == 10 and type(m.cycle) is int and m == Modulation(kind="sliding", depth=0.2, cycle=10)
 
 
 # ---- a leaderboard file that names code to run -------------------------------------------------------

@@ -159,6 +159,7 @@ def pareto(suite: str, rows: list[dict[str, Any]]) -> bytes:
         ax.set_ylabel("mean normalised score")
         ax.grid(True, alpha=0.25)
         ax.spines[["top", "right"]].set_visible(False)
-    axes[0].legend(title="division", frameon=False)
+    if axes[0].get_legend_handles_labels()[0]:  # a board of submitted entries alone has no lags to draw
+        axes[0].legend(title="division", frameon=False)
     fig.suptitle(f"{suite}: score against decision lag and cost (each division's Pareto front)")
     return _png(fig)

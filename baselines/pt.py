@@ -97,7 +97,10 @@ beam cheap where one labelling is plainly best: after the start it keeps only th
 margin of the best, so a clear pulse leaves one and the beam costs a single decision's work plus its
 copies; at 3 or 5 the dense files keep as many labels right at 1.4-5.5 times default dokf's time.
 The spurious floor (`_spurious_prob`) applies after the start's two longest periods however long the
-beam runs.
+beam runs, and from then on the beam prices the arrivals `_coast` skips as the candidates price misses
+(log q each, a dropout's excepted): left free, a labelling in which an idle track took another source's
+pulses while that source coasted scored as the true one, and the beam's lag-0 labels mixed the two
+(robust-v0's robust-onset, a source starting late beside one of near-equal period: 0.39 -> 0.97).
 
 Acquisition (`pt-post`).  The teacher's draw is as blind as a single decision to which fresh track a
 first pulse starts.  On the independent generator's dense files (8 sources, jitter 0.01 of the shortest
@@ -243,6 +246,7 @@ class ProbabilisticTeacher:
         self._q = _PRIOR_MEAN if math.isnan(q) else q
         self._lam = _PRIOR_MEAN if math.isnan(r) else r / (1.0 + r)
         self._pulses = self._called = self._hits = self._missed = 0  # the decided labels, for estimated rates
+        self._coasted = 0  # arrivals `_coast` skipped (not counting a dropout's), since `_start_beam` zeroed it
         self.taken = np.zeros(self.n, dtype=np.int64)  # pulses taken, per source
         self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
         self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
@@ -309,6 +313,9 @@ class ProbabilisticTeacher:
             b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
             self.missed += late
             self.arrivals += late
+            # the arrivals skipped before a dropout, for the beam's scores (`_start_beam`)
+            self._coasted += int(np.count_nonzero(late if self.reset_after is None
+                                                  else late & (self.missed <= self.reset_after)))
             if self.reset_after is not None:
                 b = self._reset(b, self._lost(self.missed, slice(None)))
         self.blocks = b
@@ -453,10 +460,15 @@ class ProbabilisticTeacher:
         from the best alone.  One kept labelling reproduces the single-decision rule exactly."""
         lam = self._spurious_prob(y)
         log_pulse = math.log1p(-lam)
+        # after the start the labellings' skipped arrivals are priced as the candidates' misses are: free, a
+        # labelling whose idle track takes another's pulses (the other coasting) scores as the true one
+        log_skip = math.log(max(self._q, _Q_FLOOR)) if self.coast and y > self._acquired else 0.0
         children = []
         for score, state in self._beam:
             self._load(state)
+            self._coasted = 0
             c = self.candidates(y)  # coasts the loaded state
+            score += self._coasted * log_skip
             parent = self._save()
             for r in range(c.score.size):
                 children.append((score + log_pulse + float(c.score[r]), parent, c, r))

@@ -125,6 +125,18 @@ def test_dokf_beam_margin_keeps_only_close_labellings():
         make_policy("dokf:beam_margin=0")
 
 
+def test_dokf_beam_prices_the_arrivals_it_coasts_through():
+    """robust-onset, first validation seed: the third source starts at 40 % of the episode, its prior period
+    (12.08) beside the first's (12.02).  While the beam's skipped arrivals were free, a labelling in which
+    the idle track took some of the first source's pulses (that track coasting) scored as the true one, and
+    the beam's lag-0 labels mixed them (0.39 of the labels right, one decision 0.96)."""
+    entry = find_entry("robust-v0/robust-onset")
+    ep = simulate(entry.spec, entry.seeds("validation")[0])
+    specs = ("dokf", "dokf:beam_span=1e9,beam_margin=5")
+    acc = {spec: play(make_policy(spec), ep).metrics["accuracy"] for spec in specs}
+    assert acc["dokf:beam_span=1e9,beam_margin=5"] >= max(0.9, acc["dokf"] - 0.02), acc
+
+
 def test_policy_parameters_are_checked():
     with pytest.raises(DeintError, match="label"):
         make_policy("pt-post:label=mode")

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from deint_env.errors import DeintError
+from deint_env.formats.files import short_name
 
 FORMAT = "deint-checkpoint/1"
 MAX_BYTES = 256 * 2**20  # no agent of this benchmark comes near; a bigger file is refused unread
@@ -121,7 +122,7 @@ def save_checkpoint(path: str | os.PathLike, tensors: dict[str, Any], meta: Chec
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # Write beside the target, then rename: an interrupted save never leaves a half-written checkpoint.
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{short_name(path.name)}.", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)

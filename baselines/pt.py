@@ -145,6 +145,9 @@ _Q_FLOOR = 1e-3  # the least miss probability of a coasting tracker: a merged or
 _LAM_FLOOR = 1e-6  # and its least spurious probability: a pulse no track can explain stays spurious (mht's _R_ZERO)
 _MAX_COAST = 64  # missed arrivals coasted through per pulse at most
 _MAX_STEPS = 2.0**53  # arrivals a pulse may lie past a track: float64 (and the int64 counts) stay exact below
+# the widest prior period deviation, in periods: the 2x2 filter's first updates subtract variances of
+# (std)^2 from each other, which cancel to negative ones (at 1e11 periods they did; MK94's vaguest is 1000)
+_MAX_PERIOD_STD_REL = 1e6
 _START_BEAM = {"decision": 32, "posterior": 128}  # labellings kept during the start, per teacher
 _START_SPAN = 2.0  # the start's length, in longest prior periods from the first pulse
 _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period deviation is below this fraction
@@ -220,6 +223,11 @@ class ProbabilisticTeacher:
         self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
+        wide = np.flatnonzero(~(priors.period_std <= _MAX_PERIOD_STD_REL * priors.period))
+        if wide.size:
+            j = int(wide[0])
+            raise NotApplicable(f"prior period_std[{j}]={priors.period_std[j]:g} is beyond what the PT's filter "
+                                f"holds: at most {_MAX_PERIOD_STD_REL:g} times the period ({priors.period[j]:g})")
         self.n = priors.n_labels
         self.priors = priors
         self.model = DLMModel.from_priors(priors, min_jitter=_MIN_JITTER_REL * float(np.min(priors.period)))

@@ -345,16 +345,18 @@ def make_policy(spec: str) -> Policy:
 
 
 def _check_modes(policy: Policy, info: PolicyInfo) -> None:
-    """The one check of the modes a policy plays and of its track limit (`Limits.max_sources`), from the
-    registry: its `reset` (and a BatchPolicy's `reset_row`) refuses a scenario of another mode, or with
-    more prior tracks (a blind one's label budget) than it handles, as not applicable, before the policy
-    sees it.  (An instance attribute wraps the bound method, so the policy stays itself: its type,
-    attributes and `act` are untouched.)"""
+    """The one check of the priors' type, of the modes a policy plays and of its track limit
+    (`Limits.max_sources`), from the registry: its `reset` (and a BatchPolicy's `reset_row`) refuses priors
+    that are no `Priors` (a TypeError), and a scenario of another mode, or with more prior tracks (a blind
+    one's label budget) than it handles, as not applicable, before the policy sees it.  (An instance
+    attribute wraps the bound method, so the policy stays itself: its type, attributes and `act` are
+    untouched.)"""
     limit = info.limits.max_sources
-    if set(info.modes) == set(MODES) and limit is None:
-        return
 
     def check(priors: Priors) -> None:
+        if not isinstance(priors, Priors):  # the env's info["priors"] (a dict), None: an AttributeError inside
+            raise TypeError(f"policy {info.name!r}: priors={type(priors).__name__} is invalid: a deint_env.Priors "
+                            f"(Priors.from_info(info['priors']) gives one)")
         mode = "blind" if priors.blind else "anchored"
         if mode not in info.modes:
             why = ("needs priors: it plays anchored scenarios only, and blind scenarios have none" if mode == "blind"
@@ -375,7 +377,9 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
 
     def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
         check(priors)
-        reset()(priors, episode_info)
+        method = reset()
+        if method is not None:  # None: the policy is gone (`make_policy(spec).reset(...)`): nothing to reset
+            method(priors, episode_info)
 
     policy.reset = checked_reset  # type: ignore[method-assign]
     if isinstance(policy, BatchPolicy):  # a batch's episodes pass the same check
@@ -383,7 +387,9 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
 
         def checked_reset_row(row: int, priors: Priors, episode_info: dict[str, Any]) -> None:
             check(priors)
-            reset_row()(row, priors, episode_info)
+            method = reset_row()
+            if method is not None:
+                method(row, priors, episode_info)
 
         policy.reset_row = checked_reset_row  # type: ignore[method-assign]
 

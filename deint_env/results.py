@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import json
 import math
 import os
@@ -27,7 +28,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from deint_env.errors import DeintError
-from deint_env.formats.files import check_output, read_bytes
+from deint_env.formats.files import check_output, read_bytes, short_name
 
 _write = os.write  # the one place bytes reach a results file (tests simulate a full disk here)
 
@@ -55,6 +56,17 @@ _IDENTITY: dict[str, tuple[type, ...]] = {
 }
 _OPTIONAL: dict[str, tuple[type, ...]] = {
     "policy_version": (int, str), "submitted": (bool,), "reason": (str,), "fault": (str,),
+}
+# The ranges of the integer fields and of the metrics that have one (a fraction, a correlation, a count or
+# a size): a record outside them was not written by a run, and would be averaged into a summary as it is.
+_FRACTION, _CORRELATION, _SIZE = (0.0, 1.0, "in [0, 1]"), (-1.0, 1.0, "in [-1, 1]"), (0.0, math.inf, ">= 0")
+_RANGES: dict[str, tuple[float, float, str]] = {
+    "seed": (0, 2**63 - 1, "in [0, 2^63)"), **dict.fromkeys(("lag", "n_sources", "n_pulses"), _SIZE),
+    **dict.fromkeys(("accuracy", "matched_accuracy", "link_accuracy", "genie_accuracy", "random_accuracy", "pe",
+                     "mean_pe", "spurious_precision", "spurious_recall", "cluster_f1", "v_measure", "homogeneity",
+                     "completeness"), _FRACTION),
+    **dict.fromkeys(("ami", "ari", "cluster_mcc"), _CORRELATION),
+    **dict.fromkeys(("us_per_pulse", "period_crlb_ratio", "period_rel_error", "phase_error"), _SIZE),
 }
 
 
@@ -132,6 +144,10 @@ class EpisodeRecord:
             if not (_metric_value(v) or (isinstance(v, list) and all(_metric_value(x) for x in v))):
                 raise DeintError(f"{where}: metric {k!r} is {json.dumps(v)[:40]}, not a number, null or a list of "
                                  f"them")
+        for k, (lo, hi, allowed) in _RANGES.items():
+            values = data.get(k) if isinstance(data.get(k), list) else [data.get(k)]
+            if any(x is not None and not lo - 1e-9 <= x <= hi + 1e-9 for x in values):
+                raise DeintError(f"{where}: field {k!r} is {json.dumps(data[k])[:40]}; a run writes values {allowed}")
         return cls(**known, metrics=metrics)
 
 
@@ -166,7 +182,9 @@ _held: dict[str, list[Any]] = {}  # lock path -> [fd, depth] of the locks this p
 
 def lock_path(path: str | os.PathLike) -> Path:
     path = Path(path)
-    return path.with_name(f".{path.name}.lock")
+    name = short_name(path.name)  # a long name is cut, and told apart from others cut alike by its hash
+    tag = "" if name == path.name else "." + hashlib.sha256(os.fsencode(path.name)).hexdigest()[:16]
+    return path.with_name(f".{name}{tag}.lock")
 
 
 @contextlib.contextmanager
@@ -230,7 +248,11 @@ def _repair_end(path: Path) -> None:
         whole = True
     except (ValueError, RecursionError):  # a deeply nested torn line is no record either
         whole = False
-    if not whole and not data[start:].startswith(b"{"):  # not a torn record: this is no results file
+    # A torn record is the start of one line as `EpisodeRecord.line` writes it: printable ASCII (JSON
+    # escapes the rest) that does not already hold a whole object.  Anything else (records separated by
+    # CRs alone, say) is not ours to cut off.
+    tail = data[start:]
+    if not whole and (not tail.startswith(b"{") or not all(32 <= b < 127 for b in tail) or _leading_object(tail)):
         raise DeintError(f"{path}: is not a results file (its last line is not a record); write elsewhere")
     try:
         if whole:
@@ -240,6 +262,14 @@ def _repair_end(path: Path) -> None:
             os.truncate(path, start)
     except OSError as e:
         raise DeintError(f"{path}: cannot repair its last line ({e.strerror or e})") from None
+
+
+def _leading_object(tail: bytes) -> bool:
+    try:
+        json.JSONDecoder().raw_decode(tail.decode("ascii"))
+        return True
+    except (ValueError, RecursionError):
+        return False
 
 
 def read_records(path: str | os.PathLike) -> list[EpisodeRecord]:

@@ -95,7 +95,7 @@ def test_duplicates_are_dropped_first_wins(tmp_path):
     out = tmp_path / "res.jsonl"
     runner.evaluate(["random"], TARGET, max_seeds=2, progress=False, out=out)
     a, b = out.read_text().splitlines()
-    changed = json.dumps({**json.loads(a), "accuracy": -1.0}, sort_keys=True)
+    changed = json.dumps({**json.loads(a), "accuracy": 0.999}, sort_keys=True)
     out.write_text("\n".join([a, b, changed, a]) + "\n")
     recs = read_records(out)
     assert len(recs) == 2 and recs[0].get("accuracy") == json.loads(a)["accuracy"]

@@ -15,6 +15,7 @@ from deint_env.errors import DeintError
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
 from deint_env.metrics import label_metrics, metric_keys, n_sources
 from deint_env.scenario import ScenarioSpec
+from deint_env.sim.streams import check_seed
 from deint_env.simulate import simulate
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite, resolve_scenario
 
@@ -243,6 +244,8 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     # ---- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        if seed is not None:  # a numpy integer too: gymnasium's seeding takes Python ints only (its own error)
+            seed = check_seed(seed)
         super().reset(seed=seed)
         if self._file_episode is not None:
             return self.load_episode(self._file_episode)

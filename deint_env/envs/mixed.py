@@ -13,6 +13,7 @@ from deint_env.envs.deinterleave import DeinterleaveEnv
 from deint_env.envs.vector import DeinterleaveVectorEnv
 from deint_env.episode import Episode
 from deint_env.errors import DeintError
+from deint_env.sim.streams import check_seed
 from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite
 
@@ -84,7 +85,8 @@ class MixedScenarioEnv(DeinterleaveEnv):
         return episode.n_labels <= self.n_labels and episode.blind == self.blind
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        gym.Env.reset(self, seed=seed)  # (re)seeds the draw: DeinterleaveEnv.reset would simulate its own scenario
+        # (re)seeds the draw: DeinterleaveEnv.reset would simulate its own scenario
+        gym.Env.reset(self, seed=None if seed is None else check_seed(seed))
         e, episode_seed = draw_episode(self.entries, self.seed_split, self.np_random)
         return self.load_episode(simulate(self.entries[e][1].spec, episode_seed))
 

@@ -39,9 +39,16 @@ def _cannot_write(path: PathLike, e: OSError) -> DeintError:
     return DeintError(f"cannot write {path}: {e.strerror or e}")
 
 
+def short_name(name: str, limit: int = 200) -> str:
+    """`name` cut to at most `limit` bytes, for the names of files kept beside it (a temporary file, a
+    lock): with their prefix and suffix they must stay within the file system's 255 bytes a name."""
+    raw = os.fsencode(name)
+    return name if len(raw) <= limit else os.fsdecode(raw[:limit])
+
+
 def _temporary(path: Path) -> Path:
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{short_name(path.name)}.", suffix=".tmp")
     except OSError as e:
         raise _cannot_write(path, e) from None
     os.close(fd)
@@ -76,6 +83,9 @@ def check_output(path: PathLike) -> None:
                 "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
         raise DeintError(f"cannot write {path}: it is {kind}; outputs are written only to regular files (new or "
                          f"existing)")
+    if not mode & 0o222:  # renaming over it would replace a file its owner made read-only (as root, too)
+        raise DeintError(f"cannot write {path}: it is read-only (mode {stat.S_IMODE(mode):04o}); make it writable "
+                         f"or write elsewhere")
 
 
 @contextlib.contextmanager

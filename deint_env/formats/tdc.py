@@ -291,6 +291,12 @@ class TDCTrain:
                     raise DeintError(f"{where}: labels[{i}] = {labels[i]} is not an integer emitter id")
             elif labels.dtype.kind not in "iu":
                 raise DeintError(f"{where}: labels has dtype {labels.dtype}; TDC labels are integers (int8)")
+            big = np.flatnonzero(labels > np.iinfo(np.int64).max if labels.dtype.kind == "u" else
+                                 (labels >= 2.0**63) | (labels < -2.0**63) if labels.dtype.kind == "f" else 0)
+            if big.size:  # as int64 it would wrap round, a real emitter read as noise (a negative id)
+                i = int(big[0])
+                raise DeintError(f"{where}: labels[{i}] = {labels[i]} is invalid; emitter ids are integers in "
+                                 f"[-2^63, 2^63) (TDC's are int8; negative: noise)")
             labels = labels.astype(np.int64)
         return TDCTrain(data, names, labels, dict(self.metadata), tuple(columns))
 

@@ -95,7 +95,8 @@ them unknown), the whole-episode beam holds them (mean 0.76 both ways, worst fil
 16-37 times the time (docs/experiments.md, 'Dense scenes').  `beam_margin` (nats; default none) makes that
 beam cheap where one labelling is plainly best: after the start it keeps only the labellings within the
 margin of the best, so a clear pulse leaves one and the beam costs a single decision's work plus its
-copies; at 3 or 5 the dense files keep as many labels right at 1.4-5.5 times default dokf's time.
+copies; at 3 or 5 the dense files keep as many labels right at 1.4-5.5 times default dokf's time (as
+measured before the price on skipped arrivals below, which leaves those labels as they were).
 The spurious floor (`_spurious_prob`) applies after the start's two longest periods however long the
 beam runs, and from then on the beam prices the arrivals `_coast` skips as the candidates price misses
 (log q each, a dropout's excepted): left free, a labelling in which an idle track took another source's

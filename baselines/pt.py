@@ -322,9 +322,9 @@ class ProbabilisticTeacher:
             b = Block(*(np.where(late, new, old) for new, old in zip(pred, b)))
             self.missed += late
             self.arrivals += late
-            # the arrivals skipped before a dropout, for the beam's scores (`_start_beam`)
-            self._coasted += int(np.count_nonzero(late if self.reset_after is None
-                                                  else late & (self.missed <= self.reset_after)))
+            if self._beam is not None:  # the arrivals skipped before a dropout, for the beam's scores
+                self._coasted += int(np.count_nonzero(late if self.reset_after is None
+                                                      else late & (self.missed <= self.reset_after)))
             if self.reset_after is not None:
                 b = self._reset(b, self._lost(self.missed, slice(None)))
         self.blocks = b

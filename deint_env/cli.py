@@ -39,8 +39,8 @@ from deint_env.errors import DeintError
 from deint_env.cli_boards import _add_leaderboard, _add_tune
 from deint_env.cli_import import _add_import_sb3
 from deint_env.cli_plot import _add_plot
-from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_folders, _check_paths, _Parser, _policy_inputs,
-                                _run_policies, _status, read_label_file)
+from deint_env.cli_util import (EXIT_ERROR, EXIT_INTERRUPTED, _check_folders, _check_paths, _decimal_float, _Parser,
+                                _policy_inputs, _run_policies, _status, read_label_file)
 
 # ---------------------------------------------------------------------------------------------------
 # deint simulate
@@ -173,10 +173,8 @@ def _cli_priors(args: argparse.Namespace):
             raise DeintError("the policy needs priors: give --priors PRIORS.json, or --prior-periods a,b,... "
                              "(or --n-sources N for blind labelling)")
         return Priors.from_json_dict({"blind": True, "label_budget": args.n_sources}, where="--n-sources")
-    try:  # float() also reads '1_0' as 10 and non-ASCII digits: not numbers here
-        if not args.prior_periods.isascii() or "_" in args.prior_periods:
-            raise ValueError(args.prior_periods)
-        periods = [float(x) for x in args.prior_periods.split(",")]
+    try:
+        periods = [_decimal_float(x) for x in args.prior_periods.split(",")]
     except ValueError:
         raise DeintError(f"--prior-periods={args.prior_periods!r} is invalid: comma-separated positive numbers") \
             from None

@@ -42,9 +42,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from deint_env.tune import tune
 
     _check_folders({"--work": args.work})
-    scenarios = tuple(n.strip() for n in args.scenarios.split(",")) if args.scenarios else ()
-    if not all(scenarios):  # ",,," named no scenario: not the whole suite
-        raise DeintError(f"--scenarios={args.scenarios!r} is invalid: scenario names separated by commas")
+    scenarios = _scenario_names(args.scenarios) if args.scenarios else ()  # ",,," names none: not the whole suite
     result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
                   eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
                   scenarios=scenarios, progress=not args.no_progress,
@@ -123,14 +121,18 @@ def _add_leaderboard(sub) -> None:
     e.set_defaults(func=cmd_leaderboard_export)
 
 
+def _scenario_names(text: str) -> tuple[str, ...]:
+    """The names of a --scenarios option; an empty one (",,", a trailing comma) is refused."""
+    names = tuple(n.strip() for n in text.split(","))
+    if not all(names):
+        raise DeintError(f"--scenarios={text!r} is invalid: scenario names separated by commas")
+    return names
+
+
 def _scope(suite: str, args: argparse.Namespace):
     from deint_env.leaderboard import Scope
 
-    names = None
-    if args.scenarios is not None:
-        names = tuple(n.strip() for n in args.scenarios.split(","))
-        if not all(names):
-            raise DeintError(f"--scenarios={args.scenarios!r} is invalid: scenario names separated by commas")
+    names = None if args.scenarios is None else _scenario_names(args.scenarios)
     if args.max_seeds is not None and args.max_seeds < 1:
         raise DeintError(f"--max-seeds={args.max_seeds} is invalid: an integer >= 1")
     return Scope(suite, names, args.max_seeds)

@@ -70,7 +70,8 @@ Start beam (`dokf`).  Which fresh track a first pulse starts is a guess that a s
 wrong too often (then every track holds another source's pulses: 0.002 of the labels right on one
 test file), so until two longest periods have passed (`beam_span`) `dokf` keeps the 32 best
 labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs them),
-labels each pulse by the best at once (lag 0), and then goes on from the best alone.  Known phases too: with the
+labels each pulse by the best at once (lag 0), and where the beam ends (below) goes on from the best alone.  Known
+phases too: with the
 priors' default phase deviation (5 % of the period) the first arrivals of dense sources fall in each
 other's gates, and a single decision lost 0.8 of core-v0's 8-source labels (issue #22).
 A labelling is kept only if it predicts something the better ones kept do not: one whose next two
@@ -86,17 +87,22 @@ version 5).  The deviation leaves out R, and is one, not two: with R, or at two,
 periods that swap coincident pulses (core-v0's 4-source scene, periods 14.04 and 14.64) look alike
 until they cross, and the swapped labelling, a little better then, took the true one's place (0.88 ->
 0.28 of that episode's labels right).
-`beam_span` (default 2) sets how many longest periods the beam runs; a large value (1e9) keeps it the whole
-episode, a lag-0 beam search that still labels each pulse at once but no longer goes on from one
-labelling: on the independent generator's dense files (8 sources, jitter 0.06 of the shortest period,
-clean channel, validation seeds 101-110) single decisions after the start lose the tracks one after
-another on half the files (0.15-0.18 of the labels right with the rates stated 0; mean 0.43, 0.60 with
-them unknown), the whole-episode beam holds them (mean 0.76 both ways, worst file 0.67; fdp 0.69), at
-16-37 times the time (docs/experiments.md, 'Dense scenes').  `beam_margin` (nats; default none) makes that
-beam cheap where one labelling is plainly best: after the start it keeps only the labellings within the
-margin of the best, so a clear pulse leaves one and the beam costs a single decision's work plus its
-copies; at 3 or 5 the dense files keep as many labels right at 1.4-5.5 times default dokf's time (as
-measured before the price on skipped arrivals below, which leaves those labels as they were).
+Whole-episode beam (`dokf` version 6).  After the start the beam runs on (`beam_span`, in longest periods:
+by default the whole episode where the priors place every period within half of itself, `_LOCATED`, else
+the start alone), a lag-0 beam search that still labels each pulse at once by its best labelling but no
+longer goes on from one: on the independent generator's dense files (8 sources, jitter 0.06 of the shortest
+period, clean channel, validation seeds 101-110) single decisions after the start lose the tracks one after
+another on half the files (0.15-0.18 of the labels right with the rates stated 0; mean 0.43, 0.60 with them
+unknown), the beam holds them (mean 0.76 both ways, worst file 0.67; fdp 0.69).  Kept whole (32 places, no
+margin) it cost 16-37 times a decision's time, so after the start it keeps at most `_AFTER_BEAM` (8)
+labellings within `beam_margin` (10) nats of the best: a clear pulse leaves one, and the beam costs a
+decision's work plus its copies (2-4 times version 5's time on the suites).  Both chosen on the boards'
+validation seeds and the generator's files 101-110 (docs/experiments.md, 'Dense scenes'): margin 5 cost
+MK94's two-source scenes with wrong priors (mk94-two-var2 and var3: a wrong labelling likelier for the first
+periods pruned the right one: score 0.87 -> 0.14 on one validation episode of var2), 20 kept no more right
+and took up to 2.5 times as long on the dense files; 32 places gained 0.003 on core-v0 at 1.3 times the
+time.  With vague priors (MK94 V-C's PT scenes, period 1 +- 1000) every rival labelling stays within any
+margin (7-20 ms per pulse), so there the beam ends with the start.
 The spurious floor (`_spurious_prob`) applies after the start's two longest periods however long the
 beam runs, and from then on the beam prices the arrivals `_coast` skips as the candidates price misses
 (log q each, a dropout's excepted): left free, a labelling in which an idle track took another source's
@@ -150,6 +156,8 @@ _MAX_STEPS = 2.0**53  # arrivals a pulse may lie past a track: float64 (and the 
 # (std)^2 from each other, which cancel to negative ones (at 1e11 periods they did; MK94's vaguest is 1000)
 _MAX_PERIOD_STD_REL = 1e6
 _START_BEAM = {"decision": 32, "posterior": 128}  # labellings kept during the start, per teacher
+_AFTER_BEAM = 8  # labellings kept after the start, when the beam runs on (32: +0.003 on core-v0, 1.3x the time)
+_MARGIN = 10.0  # dokf's default `beam_margin`, nats
 _START_SPAN = 2.0  # the start's length, in longest prior periods from the first pulse
 _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period deviation is below this fraction
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
@@ -197,30 +205,32 @@ PARAMS = declare(
     Param("rates", str, "priors", "priors: the priors' miss/spurious rates (unknown ones estimated); estimate: both "
           "estimated online", choices=RATES),
     Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides "
-          "by its beam of labellings (1e9: the whole episode; module doc, 'Start beam')", low=0, low_open=True),
+          "by its beam of labellings (none: the whole episode when the priors place every period within half of "
+          "itself, else 2; module doc, 'Start beam')", low=0, low_open=True, optional=True),
     Param("beam_margin", float, None, "dokf: after the start (two longest prior periods), the beam keeps only "
-          "labellings within this many nats of the best (none: its places alone bound it; module doc, 'Start beam')",
-          low=0, low_open=True, optional=True),
+          "labellings within this many nats of the best (none: its 8 places alone bound it; module doc, "
+          "'Start beam')", low=0, low_open=True, optional=True),
 )
 
 
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
     (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
-    priors state a clean channel), `gate`, `reset_after`, `rates`, `beam_span`: see the module doc.  `seed`: the
-    policy's own seed (default: the runner's policy_seed).  Declared: `PARAMS` (and each subclass's)."""
+    priors state a clean channel), `gate`, `reset_after`, `rates`, `beam_span`, `beam_margin`: see the module
+    doc.  `seed`: the policy's own seed (default: the runner's policy_seed).  Declared: `PARAMS` (and each
+    subclass's)."""
 
     lag = 0
 
     def __init__(self, teacher: str, label: str = "sample", seed: int | None = None, coast: bool | None = False,
                  gate: float = 5.0, reset_after: int | None = None, rates: str = "priors",
-                 beam_span: float = _START_SPAN, beam_margin: float | None = None):
+                 beam_span: float | None = _START_SPAN, beam_margin: float | None = None):
         check(teacher in TEACHERS, "teacher", teacher, f"one of {', '.join(TEACHERS)}")
         PARAMS.check(locals())
         check(not (coast and teacher == "prior"), "coast", coast,
               "false with the a-priori teacher (coasting needs a posterior: its sources are always overdue)")
         self.teacher, self.label, self.seed, self.rates = teacher, label, seed, rates
-        self.gate, self.beam_span, self.beam_margin = float(gate), float(beam_span), beam_margin
+        self.gate, self.beam_span, self.beam_margin = float(gate), beam_span, beam_margin
         self._coast_param, self._reset_param = coast, reset_after
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
@@ -275,7 +285,10 @@ class ProbabilisticTeacher:
         and `dokf` and `pt-post` make them by the start beam (`_start_beam`)."""
         self._started = True
         longest = float(np.max(self.priors.period))
-        self._start_end = y + self.beam_span * longest
+        # the beam runs on where the priors locate the periods; with vague ones (MK94 V-C's PT scenes, period
+        # 1 +- 1000) every rival labelling stays within the margin and the beam costs 20x a decision
+        span = self.beam_span if self.beam_span is not None else math.inf if self._located() else _START_SPAN
+        self._start_end = y + span * longest
         self._acquired = y + _START_SPAN * longest  # the acquisition's guesses are over: the beam's margin applies
         # rates are learnt after two longest periods whatever the beam's span: the acquisition's guesses are over
         self._settled = y + _START_SPAN * longest if self._guessed.any() else -math.inf
@@ -490,7 +503,7 @@ class ProbabilisticTeacher:
         children.sort(key=lambda ch: -ch[0])
         floor = children[0][0] - self.beam_margin if self.beam_margin is not None and y > self._acquired else -math.inf
         beam = []
-        size = _START_BEAM[self.teacher]
+        size = _START_BEAM[self.teacher] if y <= self._acquired else _AFTER_BEAM
         ahead = np.empty((size, 2, _AHEAD_STEPS.size, self.n))  # the kept labellings' `_ahead`
         for score, parent, c, r in children:
             if score < floor:
@@ -546,8 +559,8 @@ class DOKFTracker(ProbabilisticTeacher):
     coasting through missed arrivals and dropout resets (deterministic: it draws nothing)."""
 
     PARAMS = PARAMS.only("coast", "gate", "reset_after", "rates", "beam_span", "beam_margin").changed(
-        coast=True, reset_after=4)
+        coast=True, reset_after=4, beam_span=None, beam_margin=_MARGIN)
 
     def __init__(self, coast: bool = True, gate: float = 5.0, reset_after: int | None = 4, rates: str = "priors",
-                 beam_span: float = _START_SPAN, beam_margin: float | None = None):
+                 beam_span: float | None = None, beam_margin: float | None = _MARGIN):
         super().__init__("decision", "map", None, coast, gate, reset_after, rates, beam_span, beam_margin)

@@ -111,30 +111,44 @@ def test_coasting_and_resets_keep_tracks_alive():
 
 
 def test_dokf_beam_margin_keeps_only_close_labellings():
-    """On a clear two-source train the whole-episode beam keeps its 32 places full, with a margin of 5 nats
-    one labelling is left after the start (every rival is a wrong take, far behind), and the labels are
-    the whole-episode beam's."""
+    """On a clear two-source train the whole-episode beam without a margin keeps its 8 places after the start
+    full, dokf's default margin (10 nats) leaves one labelling (every rival is a wrong take, far behind), and
+    the labels are the same."""
     ep = simulate(CLEAN_TWO, 0)
-    full, pruned = make_policy("dokf:beam_span=1e9"), make_policy("dokf:beam_span=1e9,beam_margin=5")
+    full, pruned = make_policy("dokf:beam_margin=none"), make_policy("dokf")
     labels = {}
     for name, policy in (("full", full), ("pruned", pruned)):
         labels[name] = _run(policy, ep, 0)[0]
-    assert len(full._beam) == 32 and len(pruned._beam) == 1
+    assert len(full._beam) == 8 and len(pruned._beam) == 1
     np.testing.assert_array_equal(labels["full"], labels["pruned"])
     with pytest.raises(DeintError, match="beam_margin"):
         make_policy("dokf:beam_margin=0")
+
+
+def test_dokf_beam_ends_with_the_start_where_the_priors_are_vague():
+    """MK94 V-C's PT scenes state period 1 +- 1000: every rival labelling stays within the margin there (7-20
+    ms a pulse), so the beam ends after two longest prior periods, as in dokf version 5; priors that locate
+    the periods keep it the whole episode."""
+    vague = find_entry("paper-v0/mk94-pt-three")
+    policy = make_policy("dokf")
+    play(policy, simulate(vague.spec, vague.seeds("validation")[0]))
+    assert policy._beam is None
+    policy = make_policy("dokf")
+    play(policy, simulate(CLEAN_TWO, 0))
+    assert policy._beam is not None
 
 
 def test_dokf_beam_prices_the_arrivals_it_coasts_through():
     """robust-onset, first validation seed: the third source starts at 40 % of the episode, its prior period
     (12.08) beside the first's (12.02).  While the beam's skipped arrivals were free, a labelling in which
     the idle track took some of the first source's pulses (that track coasting) scored as the true one, and
-    the beam's lag-0 labels mixed them (0.39 of the labels right, one decision 0.96)."""
+    the beam's lag-0 labels mixed them (0.39 of the labels right at margin 5, one decision after the start
+    0.96)."""
     entry = find_entry("robust-v0/robust-onset")
     ep = simulate(entry.spec, entry.seeds("validation")[0])
-    specs = ("dokf", "dokf:beam_span=1e9,beam_margin=5")
+    specs = ("dokf:beam_span=2", "dokf:beam_margin=5", "dokf")
     acc = {spec: play(make_policy(spec), ep).metrics["accuracy"] for spec in specs}
-    assert acc["dokf:beam_span=1e9,beam_margin=5"] >= max(0.9, acc["dokf"] - 0.02), acc
+    assert min(acc["dokf:beam_margin=5"], acc["dokf"]) >= max(0.9, acc["dokf:beam_span=2"] - 0.02), acc
 
 
 def test_policy_parameters_are_checked():

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import inspect
+import io
 import json
 import math
 import os
@@ -560,6 +561,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 # deint train
 # ---------------------------------------------------------------------------------------------------
 MAX_EVAL_EPISODES = 10_000  # validation episodes per evaluation (default 32), each evaluation is played in full
+MAX_TRAIN_STEPS = 10**12  # --timesteps and --eval-every: years of training at thousands of steps a second
 
 
 def _add_train(sub) -> None:
@@ -599,6 +601,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise DeintError(f"--{name.replace('_', '-')}={value} must be >= 1")
+        if value is not None and name in ("timesteps", "eval_every") and value > MAX_TRAIN_STEPS:  # 10^20 trained on
+            raise DeintError(f"--{name.replace('_', '-')}={value} is invalid: at most 10^12 steps (years of training; "
+                             f"--time-budget bounds a run by time)")
     _check_folders({"-o": args.out})
     if args.time_budget is not None and not args.time_budget > 0:
         raise DeintError(f"--time-budget={args.time_budget} must be > 0 seconds")
@@ -748,6 +753,8 @@ def _defer_unused_numpy_modules() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Run `deint`; returns the exit status (the console script passes it to sys.exit)."""
     _defer_unused_numpy_modules()
+    if isinstance(sys.stdout, io.TextIOWrapper):  # an ASCII stdout (PYTHONIOENCODING=ascii) and the help's 'Δ'
+        sys.stdout.reconfigure(errors="backslashreplace")
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # --help, --version and usage errors: argparse has printed them

@@ -9,7 +9,7 @@ import re
 import sys
 from pathlib import Path
 
-from deint_env.errors import DeintError
+from deint_env.errors import MAX_SHOWN, DeintError
 from deint_env.formats.files import check_output
 
 
@@ -43,6 +43,8 @@ class _Parser(argparse.ArgumentParser):
         self.register("type", float, _decimal_float)
 
     def error(self, message: str):
+        if len(message) > 2 * MAX_SHOWN:  # "unrecognized arguments: " and 10^4 of them is not a message
+            message = message[:2 * MAX_SHOWN] + "..."
         self.exit(EXIT_ERROR, f"deint: error: {message} (see '{self.prog} --help')\n")
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import inspect
 import warnings
+from collections import Counter
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
@@ -133,6 +134,9 @@ def evaluate(policy: Any, *, suite: str | None = None, scenarios: Sequence[str] 
 
         load_suite(suite)  # an unknown suite named as one (a target name is otherwise looked up as a scenario)
     targets = [suite] if suite is not None else list(scenarios or ())
+    twice = [t for t, n in Counter(map(str, targets)).items() if n > 1]
+    if twice:  # its seeds were played and counted twice
+        raise DeintError(f"scenarios names {twice[0]!r} twice; name each scenario once")
     if split == "test":
         warnings.warn("split='test' plays the test seeds: they are for a finished agent's one look (boards count "
                       "every look); choose checkpoints and settings on split='validation'", stacklevel=2)

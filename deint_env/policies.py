@@ -30,12 +30,12 @@ import math
 import re
 import weakref
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.errors import DeintError, NotApplicable
+from deint_env.errors import DeintError, NotApplicable, shown
 
 GROUP = "deint_bench.policies"
 # The providers shipped in this repository (also declared under GROUP in pyproject.toml; a test checks
@@ -306,8 +306,16 @@ def canonical_spec(name: str, kwargs: dict[str, Any]) -> str:
     return name + ":" + ",".join(f"{k}={kwargs[k]}" for k in sorted(kwargs))
 
 
-def make_policy(spec: str) -> Policy:
-    """Build a registered policy from 'NAME' or 'NAME:key=value,...'; unknown keys are an error."""
+def make_policy(spec: str, *, checked: bool = False) -> Policy:
+    """Build a registered policy from 'NAME' or 'NAME:key=value,...'; unknown keys are an error.
+
+    Its `act` refuses to run before the first `reset(priors, info)` (a DeintError saying so).  `checked=True`:
+    every `act` first checks the observation it is given, as the env makes them (for observations built by
+    hand, not from the env): a mapping with 'toa' (one finite TOA, not before the last one since the reset)
+    and 'valid' (0 or 1); anything else is a DeintError (a ValueError) naming the key.  It costs every pulse;
+    the default costs none."""
+    if not isinstance(checked, (bool, np.bool_)):
+        raise DeintError(f"checked={checked!r} is invalid: True or False")
     name, kwargs = parse_policy_spec(spec)
     info = policy_info(name)
     missing = [k for k in info.required if k not in kwargs]
@@ -340,17 +348,19 @@ def make_policy(spec: str) -> Policy:
         raise DeintError(f"policy {spec!r}: {e}") from None
     if not isinstance(policy, Policy):
         raise DeintError(f"policy {name!r} does not implement reset(priors, info), act(obs) and lag")
-    _check_modes(policy, info)
+    _check_modes(policy, info, bool(checked))
     return policy
 
 
-def _check_modes(policy: Policy, info: PolicyInfo) -> None:
+def _check_modes(policy: Policy, info: PolicyInfo, checked: bool = False) -> None:
     """The one check of the priors' type, of the modes a policy plays and of its track limit
     (`Limits.max_sources`), from the registry: its `reset` (and a BatchPolicy's `reset_row`) refuses priors
     that are no `Priors` (a TypeError), and a scenario of another mode, or with more prior tracks (a blind
     one's label budget) than it handles, as not applicable, before the policy sees it.  (An instance
-    attribute wraps the bound method, so the policy stays itself: its type, attributes and `act` are
-    untouched.)"""
+    attribute wraps the bound method, so the policy stays itself: its type and attributes are untouched.)
+    Until the first reset, an instance attribute `act` says to reset first (the policy's own `act` would
+    fail on state its reset makes); the reset removes it, so `act` is the policy's own again, or, `checked`,
+    puts a `_CheckedAct` in its place."""
     limit = info.limits.max_sources
 
     def check(priors: Priors) -> None:
@@ -374,13 +384,30 @@ def _check_modes(policy: Policy, info: PolicyInfo) -> None:
         return weakref.WeakMethod(bound) if inspect.ismethod(bound) else lambda: bound
 
     reset = weak(policy.reset)
+    this = weakref.ref(policy)
 
     def checked_reset(priors: Priors, episode_info: dict[str, Any]) -> None:
         check(priors)
         method = reset()
-        if method is not None:  # None: the policy is gone (`make_policy(spec).reset(...)`): nothing to reset
-            method(priors, episode_info)
+        if method is None:  # the policy is gone (`make_policy(spec).reset(...)`): nothing to reset
+            return
+        method(priors, episode_info)
+        # after the policy's own reset: that of a registry-built policy inside it (a tuned preset's) has run first
+        obj = this()
+        if obj is None:
+            return
+        state = vars(obj)
+        act = state.get("act")
+        if isinstance(act, _NotReset):
+            del state["act"]  # the policy's own `act` again: no cost per pulse
+        if checked:
+            if isinstance(act, _CheckedAct):
+                act.last = -math.inf
+            else:
+                state["act"] = _CheckedAct(info.name, weak(obj.act))
 
+    if "act" not in vars(policy):  # a policy that sets its own `act` in __init__ keeps it
+        policy.act = _NotReset(info.name)  # type: ignore[method-assign]
     policy.reset = checked_reset  # type: ignore[method-assign]
     if isinstance(policy, BatchPolicy):  # a batch's episodes pass the same check
         reset_row = weak(policy.reset_row)
@@ -429,3 +456,52 @@ def check_policy_seed(seed: object, what: str = "policy seed") -> int:
 def policy_rng(info: dict[str, Any], seed: int | None) -> np.random.Generator:
     """A policy's generator: its own `seed` parameter if given, else the runner's `policy_seed`."""
     return np.random.default_rng(check_policy_seed(seed if seed is not None else info.get("policy_seed", 0)))
+
+
+class _NotReset:
+    """A registry-built policy's `act` until its first reset."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __call__(self, obs: dict[str, Any]) -> int:
+        raise DeintError(f"policy {self.name!r}: act(obs) before any reset: call reset(priors, info) first")
+
+
+class _CheckedAct:
+    """`make_policy(checked=True)`'s `act`: the policy's own (held weakly, as its reset is) behind a check of
+    each observation; `last` is the last TOA since the reset."""
+
+    def __init__(self, name: str, act: Callable[[], Callable[[dict[str, Any]], int] | None]) -> None:
+        self.name, self.act, self.last = name, act, -math.inf
+
+    def __call__(self, obs: dict[str, Any]) -> int:
+        where = f"policy {self.name!r}: act(obs)"
+        if not isinstance(obs, Mapping):
+            raise DeintError(f"{where}: obs={shown(obs)} is invalid: a dict with 'toa' and 'valid', as the env gives")
+        for key in ("toa", "valid"):
+            if key not in obs:
+                raise DeintError(f"{where}: obs has no {key!r} (its keys: {shown(sorted(map(str, obs)))}); the env's "
+                                 f"observations have 'toa' and 'valid'")
+        valid = obs["valid"]
+        if isinstance(valid, (bool, np.bool_)) or not isinstance(valid, (int, np.integer)) or valid not in (0, 1):
+            raise DeintError(f"{where}: obs['valid']={shown(valid)} is invalid: 0 or 1 (1: a pulse, 0: padding)")
+        try:
+            toa = np.asarray(obs["toa"], dtype=np.float64)
+        except (TypeError, ValueError):
+            toa = None
+        if toa is None or toa.shape != (1,):
+            raise DeintError(f"{where}: obs['toa']={shown(obs['toa'])} is invalid: an array of one TOA, as the env "
+                             f"gives")
+        if valid:
+            t = float(toa[0])
+            if not math.isfinite(t):
+                raise DeintError(f"{where}: obs['toa']={t!r} is invalid: a finite TOA")
+            if t < self.last:
+                raise DeintError(f"{where}: obs['toa']={t!r} is invalid: TOAs do not decrease (the last one: "
+                                 f"{self.last!r})")
+            self.last = t
+        act = self.act()
+        if act is None:
+            raise DeintError(f"{where}: the policy is gone")
+        return act(obs)

@@ -39,8 +39,9 @@ The parts, in `deint_env.sim`: `streams` (the random streams and their batched s
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from typing import NamedTuple, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -57,6 +58,7 @@ from deint_env.sim.schedule import Draws, SourceDraw, draw_sources, emissions
 from deint_env.sim.streams import AMPLITUDE_NOISE, DRAW, WAVEFORM, check_seed, fill, stream, streams
 from deint_env.sim.truth import truths
 
+MAX_SEEDS = 10**6  # seeds of one `simulate_many` call
 # Episodes simulated together hold about this many pulses: the temporaries then stay in cache and are
 # reused by the allocator (fresh pages fault, and faults are costly).
 _BATCH_PULSES = 1 << 18
@@ -80,10 +82,23 @@ def simulate(spec: ScenarioSpec, seed: int) -> Episode:
 
 
 def simulate_many(spec: ScenarioSpec, seeds: Sequence[int]) -> list[Episode]:
-    """One episode of `spec` per seed, each bit-identical to `simulate(spec, seed)`, made together."""
+    """One episode of `spec` per seed, each bit-identical to `simulate(spec, seed)`, made together.
+
+    At most `MAX_SEEDS` (10^6) seeds a call (more is refused before any is simulated): the episodes are
+    returned as one list, held in memory together; simulate a longer range in blocks."""
     if not isinstance(spec, ScenarioSpec):
         raise DeintError(f"spec={shown(spec)} is invalid: a ScenarioSpec (deint_env.resolve_scenario(NAME) gives one)")
-    seeds = [check_seed(s) for s in seeds]
+    bad = f"seeds={shown(seeds)} is invalid: a sequence of integers in [0, 2^63)"
+    if isinstance(seeds, (str, bytes, bytearray, Mapping)):  # b'ab' iterates as the seeds 97 and 98
+        raise DeintError(bad)
+    try:  # an iterable of any length (range(10**12)) is read no further than the bound
+        head = list(itertools.islice(seeds, MAX_SEEDS + 1))
+    except TypeError:
+        raise DeintError(bad) from None
+    if len(head) > MAX_SEEDS:
+        raise DeintError(f"seeds={shown(seeds)} is invalid: at most {MAX_SEEDS} seeds a call (the episodes are held "
+                         f"in memory together); simulate them in blocks")
+    seeds = [check_seed(s) for s in head]
     size = max(1, _BATCH_PULSES // spec.n_pulses)
     episodes = [episode for start in range(0, len(seeds), size)
                 for episode in _simulate_batch(spec, seeds[start:start + size])]

@@ -40,6 +40,7 @@ METHOD = "successive halving"
 # invalid combination such as mht's nscan > lag) and repeats are redrawn.
 DRAWS_PER_CONFIG = 50
 MAX_CONFIGS = 1000  # about a second to draw and build; rung 0 plays each candidate on every scenario anyway
+MAX_BUDGET = 10**9  # plays: more than any search spends (MAX_CONFIGS candidates on every validation seed)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -247,8 +248,8 @@ def plays(rungs: list[Rung], n_scenarios: int) -> int:
 def schedule(n: int, eta: int, budget: int, n_scenarios: int, max_seeds: int) -> list[Rung]:
     """The rungs for `n` candidates that fit `budget` plays: the most rung-0 seeds that fit; if even
     one seed does not, fewer candidates (the first ones: defaults and known configurations first)."""
-    if not isinstance(eta, int) or isinstance(eta, bool) or eta < 2:
-        raise DeintError(f"eta={eta!r} is invalid: an integer >= 2")
+    if not isinstance(eta, int) or isinstance(eta, bool) or not 2 <= eta <= MAX_CONFIGS:  # more keeps 1 after rung 0
+        raise DeintError(f"eta={eta!r} is invalid: an integer in [2, {MAX_CONFIGS}]")
     while n >= 1:
         if plays(_rungs(n, eta, 1, max_seeds), n_scenarios) <= budget:
             k0 = 1
@@ -339,8 +340,8 @@ def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 20
         raise DeintError(f"configs={configs!r} is invalid: an integer in [1, {MAX_CONFIGS}]")
     check_policy_seed(seed, "seed")  # numpy's generators take no negative seed
     check_workers(workers)  # before the schedule is printed
-    if not isinstance(budget, int) or isinstance(budget, bool) or budget < 1:  # before any policy is built
-        raise DeintError(f"budget={budget!r} is invalid: an integer >= 1 (episode plays)")
+    if not isinstance(budget, int) or isinstance(budget, bool) or not 1 <= budget <= MAX_BUDGET:  # before any build
+        raise DeintError(f"budget={budget!r} is invalid: an integer in [1, 10^9] (episode plays)")
     pool = candidates(policy, division, configs, seed)
     n_valid = min(len(e.seeds("validation")) for e in entries)
     rungs = schedule(len(pool), eta, budget, len(entries), n_valid)

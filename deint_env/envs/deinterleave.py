@@ -11,7 +11,7 @@ import numpy as np
 from gymnasium import spaces
 
 from deint_env.episode import DESCRIPTORS, Episode, Priors
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 from deint_env.labels import NO_PRED, SPURIOUS_PRED, true_predecessors
 from deint_env.metrics import label_metrics, metric_keys, n_sources
 from deint_env.scenario import ScenarioSpec
@@ -46,6 +46,12 @@ def _tdc_episode(path: str) -> Episode:
     if train.labels is None:
         raise DeintError(f"{path}: has no 'labels' dataset; scenario='tdc:PATH' plays a file's labels as the truth")
     return train.episode(Priors(n_labels=TDC_LABELS, blind=True), name=f"{TDC_PREFIX}{path}")
+
+
+def check_reset_options(options: Any) -> None:
+    """The envs take no reset options: one they would ignore (a typo, a wrapper's) is refused, not dropped."""
+    if options is not None and not (isinstance(options, dict) and not options):
+        raise DeintError(f"options={shown(options)} is invalid: these envs take no reset options (None or {{}})")
 
 
 def check_lag(lag: object) -> int:
@@ -244,6 +250,7 @@ class DeinterleaveEnv(gym.Env[dict, int]):
 
     # ---- gymnasium API ---------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        check_reset_options(options)
         if seed is not None:  # a numpy integer too: gymnasium's seeding takes Python ints only (its own error)
             seed = check_seed(seed)
         super().reset(seed=seed)

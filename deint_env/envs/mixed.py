@@ -9,10 +9,10 @@ import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
-from deint_env.envs.deinterleave import DeinterleaveEnv
+from deint_env.envs.deinterleave import DeinterleaveEnv, check_reset_options
 from deint_env.envs.vector import DeinterleaveVectorEnv
 from deint_env.episode import Episode
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 from deint_env.sim.streams import check_seed
 from deint_env.simulate import simulate, simulate_many
 from deint_env.suites import SPLITS, SuiteEntry, find_entry, list_suites, load_suite
@@ -36,7 +36,8 @@ def select_entries(suite: str | None = None, scenarios: Sequence[str] | None = N
     if tags:
         chosen = [(n, e) for n, e in chosen if set(tags) <= set(e.tags)]
     if not chosen:
-        raise DeintError(f"no scenario of {suite or list(scenarios or ())} has the tags {list(tags or ())}")
+        where = suite or shown(list(scenarios or ()))
+        raise DeintError(f"no scenario of {where} has the tags {shown(list(tags or ()))}")
     return chosen
 
 
@@ -85,6 +86,7 @@ class MixedScenarioEnv(DeinterleaveEnv):
         return episode.n_labels <= self.n_labels and episode.blind == self.blind
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        check_reset_options(options)
         # (re)seeds the draw: DeinterleaveEnv.reset would simulate its own scenario
         gym.Env.reset(self, seed=None if seed is None else check_seed(seed))
         e, episode_seed = draw_episode(self.entries, self.seed_split, self.np_random)

@@ -12,7 +12,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from deint_env.envs.deinterleave import DEFAULT_SCENARIO, check_lag, observation_space, split_seeds
+from deint_env.envs.deinterleave import (DEFAULT_SCENARIO, check_lag, check_reset_options, observation_space,
+                                         split_seeds)
 from deint_env.episode import DESCRIPTORS
 from deint_env.episode import Episode
 from deint_env.errors import DeintError
@@ -247,6 +248,7 @@ class DeinterleaveVectorEnv(VectorEnv):
 
     # ---- gymnasium API -------------------------------------------------------------------------------
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None):
+        check_reset_options(options)
         seeds = self._seeds(seed)
         super().reset(seed=int(seed) if isinstance(seed, (int, np.integer)) else None)
         infos: dict[str, Any] = {}

@@ -50,7 +50,7 @@ from deint_env.formats.npz import read_npz
 from deint_env.leaderboard.build import BOARD, DEFAULT_ROOT, RESULTS, SUFFIX, Scope, write
 from deint_env.progress import progress_bar
 from deint_env.results import EpisodeRecord, json_ready, read_records, results_lock
-from deint_env.runner import reference_accuracies
+from deint_env.runner import check_workers, reference_accuracies
 from deint_env.scenario import ScenarioSpec
 from deint_env.simulate import simulate
 from deint_env.suites import load_suite
@@ -331,6 +331,7 @@ def export(scope: Scope, policy: str, path: str | os.PathLike, *, workers: int =
     .npz, else JSON lines); returns the number of episodes."""
     from deint_env.policies import canonical_spec, make_policy, parse_policy_spec
 
+    check_workers(workers)  # 10^20 reached the process pool (OverflowError), 0 played in this process
     path = Path(path)
     if not path.resolve().parent.is_dir():
         raise DeintError(f"{path}: cannot write: directory {path.parent} does not exist")

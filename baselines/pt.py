@@ -485,32 +485,37 @@ class ProbabilisticTeacher:
         # after the start the labellings' skipped arrivals are priced as the candidates' misses are: free, a
         # labelling whose idle track takes another's pulses (the other coasting) scores as the true one
         log_skip = math.log(max(self._q, _Q_FLOOR)) if self.coast and y > self._acquired else 0.0
-        children = []
+        scores, expanded = [], []  # each kept labelling's children's scores (its rows, then "spurious")
         for score, state in self._beam:
             self._load(state)
             self._coasted = 0
             c = self.candidates(y)  # coasts the loaded state
             score += self._coasted * log_skip
-            parent = self._save()
-            for r in range(c.score.size):
-                children.append((score + log_pulse + float(c.score[r]), parent, c, r))
+            expanded.append((self._save(), c))
+            children = (score + log_pulse) + c.score
             if lam > 0:
                 b = int(np.argmax(c.score))
                 spread = float(c.s[b]) + float(c.pred.period[b]) ** 2 / 12.0
                 e = float(c.e[b])
-                children.append((score + math.log(lam) + float(self.log_pi[c.source[b]])
-                                 - 0.5 * (math.log(spread) + e * e / spread), parent, c, -1))
-        children.sort(key=lambda ch: -ch[0])
-        floor = children[0][0] - self.beam_margin if self.beam_margin is not None and y > self._acquired else -math.inf
+                children = np.append(children, score + math.log(lam) + float(self.log_pi[c.source[b]])
+                                     - 0.5 * (math.log(spread) + e * e / spread))
+            scores.append(children)
+        flat = np.concatenate(scores)
+        owner = np.repeat(np.arange(len(scores)), [ch.size for ch in scores])
+        row = np.concatenate([np.arange(ch.size) for ch in scores])
+        order = np.argsort(-flat, kind="stable").tolist()  # best first; ties in the labellings' and rows' order
+        floor = flat[order[0]] - self.beam_margin if self.beam_margin is not None and y > self._acquired else -math.inf
         beam = []
         size = _START_BEAM[self.teacher] if y <= self._acquired else _AFTER_BEAM
         ahead = np.empty((size, 2, _AHEAD_STEPS.size, self.n))  # the kept labellings' `_ahead`
-        for score, parent, c, r in children:
+        for k in order:
+            score = float(flat[k])
             if score < floor:
                 break
+            parent, c = expanded[owner[k]]
             self._load(parent)
-            if r >= 0:
-                self._apply(c, r, False)
+            if row[k] < c.score.size:  # else "spurious": nothing updated
+                self._apply(c, int(row[k]), False)
             mean, var = self._ahead()
             kept = ahead[:len(beam)]
             if np.any(np.all((kept[:, 0] - mean) ** 2 <= _SAME_AHEAD ** 2 * np.minimum(kept[:, 1], var), axis=(1, 2))):
@@ -519,8 +524,8 @@ class ProbabilisticTeacher:
             beam.append((score, self._save()))
             if len(beam) == size:
                 break
-        top = children[0]
-        label = int(top[2].source[top[3]]) if top[3] >= 0 else self.n
+        parent, c = expanded[owner[order[0]]]
+        label = int(c.source[row[order[0]]]) if row[order[0]] < c.score.size else self.n
         self._beam = beam
         self._load(beam[0][1])  # the tracker's state is the best labelling's
         return label

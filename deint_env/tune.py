@@ -133,7 +133,8 @@ SPACES: dict[str, Space] = {
         divisions={"online": {}, "low-latency": {}, "offline": {}}),
     "dokf": Space(
         params={"coast": Choice((True, False)), "gate": Range(3.0, 8.0),
-                "reset_after": Choice((None, 2, 3, 4, 6, 8)), "rates": Choice(("priors", "estimate"))},
+                "reset_after": Choice((None, 2, 3, 4, 6, 8)), "rates": Choice(("priors", "estimate")),
+                "beam_margin": Choice((5.0, 10.0, 20.0))},
         divisions={"online": {}, "low-latency": {}, "offline": {}}),
     "renewal-ml": Space(
         params={"beam": Choice((None, 16, 32, 64, 128)), "lag": Choice((4, 8, 16, 32, 64)),

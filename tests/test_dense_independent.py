@@ -68,9 +68,9 @@ def test_acceptance_on_cells_of_the_matrix(tmp_path, n, jitter, rates):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="issue #22's acceptance is not met on every file yet: mht (v10) holds in "
-                   "every cell, but on the first file of 8 sources at jitter 0.06 (fdp 0.83) dokf (0.41 rates "
-                   "unknown, 0.22 stated 0) and pt-post (0.25 stated 0) lose their tracks one after another "
-                   "(docs/experiments.md, 'Dense scenes')")
+                   "every cell, and dokf (v6, its whole-episode beam: 0.74-0.76 over files 1-3), but on the first "
+                   "file of 8 sources at jitter 0.06 (fdp 0.83) pt-post (0.25 stated 0) loses its tracks one after "
+                   "another (docs/experiments.md, 'Dense scenes')")
 def test_acceptance_on_the_whole_matrix(tmp_path):
     """Every cell of the matrix, 2000 pulses (benchmarks/bench_dense.py prints the table)."""
     failures = []

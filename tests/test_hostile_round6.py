@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from deint_env.cli import main
+from hostile_cli import one_line
 
 RUN = ["run", "--scenario", "paper-v0/mk94-two-var1", "--policy", "random", "--max-seeds", "2", "--no-progress",
        "--out", "r.jsonl"]
@@ -22,15 +23,6 @@ RUN = ["run", "--scenario", "paper-v0/mk94-two-var1", "--policy", "random", "--m
 @pytest.fixture(autouse=True)
 def in_tmp(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-
-
-def one_line(capsys, *argv, says: str) -> str:
-    """`deint ARGV` exits 2 with one error line (its last) holding `says`."""
-    code = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("deint: error: ") == 1 and err.endswith("\n") and says in err, err
-    assert err.splitlines()[-1].startswith("deint: error: "), err
-    return err
 
 
 @pytest.fixture

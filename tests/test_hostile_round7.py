@@ -20,6 +20,7 @@ import pytest
 
 import deint_env
 from deint_env.cli import main
+from hostile_cli import one_line
 from deint_env.errors import DeintError
 from deint_env.play import play
 
@@ -29,15 +30,6 @@ BIG = "100000000000000000000"
 @pytest.fixture(autouse=True)
 def in_tmp(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-
-
-def one_line(capsys, *argv, says: str) -> str:
-    """`deint ARGV` exits 2 with one error line (its last) holding `says`."""
-    code = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("deint: error: ") == 1 and err.endswith("\n") and says in err, err
-    assert err.splitlines()[-1].startswith("deint: error: "), err
-    return err
 
 
 # ---- Ctrl-C while Python imports the package ---------------------------------------------------------

@@ -70,10 +70,9 @@ Start beam (`dokf`).  Which fresh track a first pulse starts is a guess that a s
 wrong too often (then every track holds another source's pulses: 0.002 of the labels right on one
 test file), so until two longest periods have passed (`beam_span`) `dokf` keeps the 32 best
 labellings (each extended by every hypothesis above and by "spurious", scored as Theorem 1 weighs them),
-labels each pulse by the best at once (lag 0), and where the beam ends (below) goes on from the best alone.  Known
-phases too: with the
-priors' default phase deviation (5 % of the period) the first arrivals of dense sources fall in each
-other's gates, and a single decision lost 0.8 of core-v0's 8-source labels (issue #22).
+labels each pulse by the best at once (lag 0), and where the beam ends (below) goes on from the best alone.
+Known phases too: with the priors' default phase deviation (5 % of the period) the first arrivals of dense
+sources fall in each other's gates, and a single decision lost 0.8 of core-v0's 8-source labels (issue #22).
 A labelling is kept only if it predicts something the better ones kept do not: one whose next two
 arrivals of every source lie within one deviation (the state's, var tau' without the jitter's R) of a
 better kept labelling's is dropped.  In a dense start the ambiguities are independent (which of
@@ -286,7 +285,7 @@ class ProbabilisticTeacher:
         self._started = True
         longest = float(np.max(self.priors.period))
         # the beam runs on where the priors locate the periods; with vague ones (MK94 V-C's PT scenes, period
-        # 1 +- 1000) every rival labelling stays within the margin and the beam costs 20x a decision
+        # 1 +- 1000) every rival labelling stays within the margin and the beam costs 7-20 ms a pulse
         span = self.beam_span if self.beam_span is not None else math.inf if self._located() else _START_SPAN
         self._start_end = y + span * longest
         self._acquired = y + _START_SPAN * longest  # the acquisition's guesses are over: the beam's margin applies
@@ -478,8 +477,9 @@ class ProbabilisticTeacher:
         hypothesis of `candidates` (log(1 - lambda) + its score) and by "spurious" (log lambda + Theorem
         1's spread density around its best hypothesis), and the best `_START_BEAM[teacher]` kept,
         skipping any whose next two arrivals (`_ahead`) a better kept one predicts within `_SAME_AHEAD`
-        deviations; each pulse is labelled at once by the best, and after the start the tracker goes on
-        from the best alone.  One kept labelling reproduces the single-decision rule exactly."""
+        deviations; each pulse is labelled at once by the best.  After the start (`dokf`, `beam_span`) at most
+        `_AFTER_BEAM` are kept, within `beam_margin` of the best; where the beam ends the tracker goes on from
+        the best alone.  One kept labelling reproduces the single-decision rule exactly."""
         lam = self._spurious_prob(y)
         log_pulse = math.log1p(-lam)
         # after the start the labellings' skipped arrivals are priced as the candidates' misses are: free, a

@@ -207,8 +207,8 @@ PARAMS = declare(
           "by its beam of labellings (none: the whole episode when the priors place every period within half of "
           "itself, else 2; module doc, 'Start beam')", low=0, low_open=True, optional=True),
     Param("beam_margin", float, None, "dokf: after the start (two longest prior periods), the beam keeps only "
-          "labellings within this many nats of the best (none: its 8 places alone bound it; module doc, "
-          "'Start beam')", low=0, low_open=True, optional=True),
+          f"labellings within this many nats of the best (none: its {_AFTER_BEAM} places alone bound it; module "
+          "doc, 'Start beam')", low=0, low_open=True, optional=True),
 )
 
 
@@ -524,8 +524,9 @@ class ProbabilisticTeacher:
             beam.append((score, self._save()))
             if len(beam) == size:
                 break
-        parent, c = expanded[owner[order[0]]]
-        label = int(c.source[row[order[0]]]) if row[order[0]] < c.score.size else self.n
+        top = order[0]
+        c = expanded[owner[top]][1]
+        label = int(c.source[row[top]]) if row[top] < c.score.size else self.n
         self._beam = beam
         self._load(beam[0][1])  # the tracker's state is the best labelling's
         return label

@@ -96,11 +96,11 @@ POLICIES = (
                division_params=(("online", "lag=3,nscan=3"), ("low-latency", "lag=64")),
                description="gated multi-hypothesis tracker (beam search, N-scan pruning) on the DLM's KF; missed and "
                            "spurious pulses scored; unknown rates estimated online"),
-    PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED,
+    PolicyInfo("agile-kf", "baselines.agile:AgileKF", modes=ANCHORED, version=2,
                limits=TRACKS,
                description="agile PRIs: a bank of PRI state models per source (the one the priors name, else "
                            "constant/trend/stagger/switch) on the Kalman core, MAP assignment, coasting"),
-    PolicyInfo("renewal-ml", "baselines.agile:RenewalML", division_params=(("online", "lag=3"),),
+    PolicyInfo("renewal-ml", "baselines.agile:RenewalML", division_params=(("online", "lag=3"),), version=2,
                limits=FEW_TRACKS,
                description="Young et al. 2019: ML path search (beam, fixed lag) over renewal-process PRI models "
                            "with missing and spurious pulses; blind mode: tracks born from the pulses"),

@@ -23,22 +23,32 @@ class AgileFile(NamedTuple):
     toa: np.ndarray
     source: np.ndarray  # -1 = spurious
     kinds: tuple[str, ...]
+    # the truth an emitter library would state, per radar: its mean PRI and its PRI modulation in the
+    # priors format of docs/cli.md (a sinusoid's phase and a cycle's position at the first pulse are left
+    # unknown, as a library cannot know them)
+    period: tuple[float, ...] = ()
+    modulation: tuple[dict, ...] = ()
 
 
-def intervals(kind: str, mean: float, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n successive PRIs of one radar with mean PRI about `mean`, straight from the definitions."""
+def intervals(kind: str, mean: float, n: int, rng: np.random.Generator) -> tuple[np.ndarray, float, dict]:
+    """n successive PRIs of one radar with mean PRI about `mean`, straight from the definitions; and the
+    radar's true mean PRI and modulation (see `AgileFile`)."""
     k = np.arange(n)
     if kind == "jittered":  # renewal: each interval uniform within +-5 % of the mean
-        return mean * (1 + 0.05 * rng.uniform(-1, 1, n))
+        return mean * (1 + 0.05 * rng.uniform(-1, 1, n)), mean, {"kind": "constant"}
     if kind == "stagger":  # 2 to 6 levels drawn at random within +-35 % of the mean, repeated
         levels = mean * rng.uniform(0.65, 1.35, rng.integers(2, 7))
-        return levels[(k + rng.integers(levels.size)) % levels.size]
+        pri = levels[(k + rng.integers(levels.size)) % levels.size]
+        return pri, float(levels.mean()), {"kind": "stagger", "pattern": (levels / levels.mean()).tolist(),
+                                           "random_start": True}
     if kind == "sliding":  # a saw-tooth sweep 30 to 60 % deep over 16 to 48 pulses
         depth, cycle = rng.uniform(0.3, 0.6), int(rng.integers(16, 49))
-        return mean * (1 + depth * (((k + rng.integers(cycle)) % cycle) / (cycle - 1) - 0.5))
+        pri = mean * (1 + depth * (((k + rng.integers(cycle)) % cycle) / (cycle - 1) - 0.5))
+        return pri, mean, {"kind": "sliding", "depth": float(depth), "cycle": cycle, "random_start": True}
     if kind == "sinusoidal":  # a sine 10 to 25 % deep, a non-integer 20 to 60 pulses per cycle
         depth, cycle = rng.uniform(0.1, 0.25), rng.uniform(20, 60)
-        return mean * (1 + depth * np.sin(2 * math.pi * k / cycle + rng.uniform(0, 2 * math.pi)))
+        pri = mean * (1 + depth * np.sin(2 * math.pi * k / cycle + rng.uniform(0, 2 * math.pi)))
+        return pri, mean, {"kind": "sinusoidal", "depth": float(depth), "cycle": float(cycle)}
     raise ValueError(kind)
 
 
@@ -58,9 +68,11 @@ def agile_file(kinds: tuple[str, ...], seed: int, n_pulses: int = 1000, missing:
     rng = np.random.default_rng(seed)
     mean = means(len(kinds), rng)
     duration = n_pulses / ((1 - missing) * (1 + spurious) * float(np.sum(1 / mean)))
-    toas, labels = [], []
+    toas, labels, periods, mods = [], [], [], []
     for i, (kind, m) in enumerate(zip(kinds, mean)):
-        pri = intervals(kind, float(m), int(2 * duration / m) + 4, rng)
+        pri, period, mod = intervals(kind, float(m), int(2 * duration / m) + 4, rng)
+        periods.append(float(period))
+        mods.append(mod)
         t = rng.uniform(0, m) + np.concatenate([[0.0], np.cumsum(pri[:-1])])
         t = t[t < duration]
         t = t[rng.random(t.size) >= missing]
@@ -72,7 +84,7 @@ def agile_file(kinds: tuple[str, ...], seed: int, n_pulses: int = 1000, missing:
     labels.append(np.full(c, -1))
     toa, src = np.concatenate(toas), np.concatenate(labels)
     order = np.argsort(toa, kind="stable")
-    return AgileFile(toa[order], src[order].astype(np.int64), tuple(kinds))
+    return AgileFile(toa[order], src[order].astype(np.int64), tuple(kinds), tuple(periods), tuple(mods))
 
 
 def write_pulses(path: Path, f: AgileFile) -> None:

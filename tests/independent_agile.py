@@ -87,6 +87,20 @@ def agile_file(kinds: tuple[str, ...], seed: int, n_pulses: int = 1000, missing:
     return AgileFile(toa[order], src[order].astype(np.int64), tuple(kinds), tuple(periods), tuple(mods))
 
 
+def library_priors(f: AgileFile, missing: float, spurious: float, phases: bool = False) -> dict:
+    """A priors file such as an emitter library gives: each radar's mean PRI and modulation (the file's
+    truth), the TOA noise, the channel's rates and, for jittered radars, the PRI jitter; the phases (each
+    radar's first received pulse, within half a period) only if `phases`."""
+    pri_jitter = float(np.mean(f.period)) * 0.05 / math.sqrt(3) if "jittered" in f.kinds else 0.0
+    out = {"period": list(f.period), "period_std": [0.01 * p for p in f.period], "jitter_std": TOA_NOISE,
+           "pri_jitter_std": pri_jitter, "missing_prob": missing, "spurious_rate": spurious,
+           "modulation": list(f.modulation)}
+    if phases:
+        out["phase"] = [float(f.toa[f.source == i][0]) for i in range(len(f.kinds))]
+        out["phase_std"] = [0.5 * p for p in f.period]
+    return out
+
+
 def write_pulses(path: Path, f: AgileFile) -> None:
     """A pulse CSV with the truth (`source`, -1 = spurious), which policies never see."""
     rows = "".join(f"{t!r},{s}\n" for t, s in zip(f.toa.tolist(), f.source.tolist()))

@@ -1,4 +1,4 @@
-"""Shared timing helper for the benchmark scripts (figures are printed, never asserted)."""
+"""Shared helpers for the benchmark scripts (figures are printed, never asserted)."""
 
 from __future__ import annotations
 
@@ -14,3 +14,9 @@ def best_of(fn: Callable[[], object], repeats: int = 5) -> float:
         fn()
         best = min(best, time.perf_counter() - t0)
     return best
+
+
+def files_summary(values: list[float]) -> str:
+    """A per-file accuracy list in one line: its worst file, its mean and how many files reach 0.90."""
+    return (f"worst file {min(values):.3f}, mean {sum(values) / len(values):.4f}, "
+            f"files >= 0.90: {sum(v >= 0.9 for v in values)}/{len(values)}")

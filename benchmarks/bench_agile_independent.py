@@ -22,7 +22,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from independent_agile import agile_file, grid, library_priors, matched_accuracy, read_labels, write_pulses  # noqa: E402
+from _common import files_summary  # noqa: E402
+from independent_agile import (agile_file, grid, library_priors, matched_accuracy, read_labels,  # noqa: E402
+                               write_pulses)
 
 from deint_env.cli import main  # noqa: E402
 
@@ -56,8 +58,7 @@ def run(seeds: list[int], policies: list[str], scenes: list[str] | None, phases:
             print(f"{name:30s}" + "".join(cells), flush=True)
     for p, values in accs.items():
         if values:
-            print(f"{p}: worst file {min(values):.3f}, mean {sum(values) / len(values):.4f}, "
-                  f"files >= 0.90: {sum(v >= 0.9 for v in values)}/{len(values)}")
+            print(f"{p}: {files_summary(values)}")
 
 
 if __name__ == "__main__":

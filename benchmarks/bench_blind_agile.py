@@ -19,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from _common import files_summary  # noqa: E402
 from independent_agile import agile_file, grid, matched_accuracy, read_labels, write_pulses  # noqa: E402
 
 from deint_env.cli import main  # noqa: E402
@@ -57,8 +58,7 @@ def run(seeds: int, policies: list[str], scenes: list[str] | None) -> None:
                 print(f"{name:30s}{setting:8s}" + "".join(cells) + f"{best:10.3f}", flush=True)
     for setting, values in best_of.items():
         if values:
-            print(f"best blind policy, {setting}: worst file {min(values):.3f}, mean {sum(values) / len(values):.3f}, "
-                  f"files >= 0.90: {sum(v >= 0.9 for v in values)}/{len(values)}")
+            print(f"best blind policy, {setting}: {files_summary(values)}")
 
 
 if __name__ == "__main__":

@@ -48,6 +48,11 @@ class BeamDecoder:
         if (isinstance(decision_lag, bool) or not isinstance(decision_lag, (int, np.integer))
                 or not 0 <= decision_lag <= 1000):
             raise DeintError(f"decision_lag={decision_lag!r} is invalid: an integer in [0, 1000]")
+        # every pulse copies the beam's undecided labels: beam=4096 with decision_lag=1000 (32 MB a pulse) ran 500
+        # pulses for over 60 s; 2^20 labels take ~40 ms a pulse
+        if beam * (decision_lag + 1) > 2**20:
+            raise DeintError(f"beam={beam} with decision_lag={decision_lag} is invalid: beam * (decision_lag + 1) "
+                             f"at most 2^20 (the undecided labels every pulse copies)")
         self.net, self.layout = net, layout
         self.beam, self.decision_lag, self.merge = int(beam), int(decision_lag), bool(merge)
         self.consistency = float(consistency)

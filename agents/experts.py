@@ -50,6 +50,9 @@ class ReferenceExpert:
         info = policy_info(name)  # one line naming the known policies when unknown
         if info.learned:
             raise DeintError(f"--expert {spec!r} is a learned agent; imitate a reference policy or the truth")
+        if "anchored" not in info.modes:  # else refused at the first episode, under a running progress bar
+            raise DeintError(f"--expert {spec!r} plays blind scenarios only; imitate an anchored reference policy "
+                             "(mht, fdp, genie, ...) or the truth")
         self.name = spec
         self.policy = make_policy(spec)
         self.oracle = is_oracle(spec)

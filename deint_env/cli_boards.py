@@ -29,7 +29,7 @@ def _add_tune(sub) -> None:
     p.add_argument("--configs", type=int, default=27, help="candidate configurations (default 27)")
     p.add_argument("--eta", type=int, default=3, help="keep 1/eta per rung, eta times the seeds (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the candidates drawn from the space")
-    p.add_argument("--scenarios", default="", metavar="A,B,...", help="only these scenarios of the suite")
+    p.add_argument("--scenarios", default=None, metavar="A,B,...", help="only these scenarios of the suite")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
     p.add_argument("--out", metavar="PRESET.json",
                    help="the preset file (default baselines/presets/POLICY/SUITE.DIVISION.json)")
@@ -42,7 +42,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from deint_env.tune import tune
 
     _check_folders({"--work": args.work})
-    scenarios = _scenario_names(args.scenarios) if args.scenarios else ()  # ",,," names none: not the whole suite
+    # ",,," and "" name none: not the whole suite
+    scenarios = _scenario_names(args.scenarios) if args.scenarios is not None else ()
     result = tune(args.policy, args.suite, division=args.division, budget=args.budget, configs=args.configs,
                   eta=args.eta, seed=args.seed, workers=args.workers, out=args.out, work=args.work,
                   scenarios=scenarios, progress=not args.no_progress,

@@ -183,7 +183,7 @@ class Priors:
                     or (n is not None and arr.size != n) or arr.size == 0:
                 want = f"{n} " if n is not None else ""
                 raise DeintError(f"{where}: {key} must be a list of {want}{'positive ' if positive else ''}numbers of "
-                                 f"size in [{MIN_POSITIVE if positive else 0:g}, {MAX_MAGNITUDE:g}], got {v!r}"[:300])
+                                 f"size in [{MIN_POSITIVE if positive else 0:g}, {MAX_MAGNITUDE:g}], got {shown(v)}")
             return arr
 
         period = vector("period", None, True)

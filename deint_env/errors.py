@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 
 class DeintError(ValueError):
     """Bad user input (a field, a file, a name): the message says what is wrong and what is allowed."""
@@ -17,8 +19,8 @@ MAX_SHOWN = 200  # characters of a bad value an error line repeats (a 10^4-entry
 
 
 def shown(value: object) -> str:
-    """`repr(value)`, cut to MAX_SHOWN characters."""
-    text = repr(value)
+    """`repr(value)` on one line (a numpy array's repr breaks lines), cut to MAX_SHOWN characters."""
+    text = re.sub(r"\n\s*", " ", repr(value))  # a str's repr escapes its newlines: only containers' are joined
     return text if len(text) <= MAX_SHOWN else text[:MAX_SHOWN] + "..."
 
 

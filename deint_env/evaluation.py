@@ -30,7 +30,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from deint_env.episode import Priors
-from deint_env.errors import DeintError, NotApplicable
+from deint_env.errors import DeintError, NotApplicable, shown
 from deint_env.features import TrackFeatures, TrackLayout
 from deint_env.metrics import SCORE
 from deint_env.results import EpisodeRecord
@@ -134,6 +134,9 @@ def evaluate(policy: Any, *, suite: str | None = None, scenarios: Sequence[str] 
 
         load_suite(suite)  # an unknown suite named as one (a target name is otherwise looked up as a scenario)
     targets = [suite] if suite is not None else list(scenarios or ())
+    bad = [t for t in targets if not isinstance(t, str)]
+    if bad:  # a ScenarioSpec reached the runner's name lookup (TypeError: not iterable)
+        raise DeintError(f"scenarios holds {shown(bad[0])}: a list of SUITE/SCENARIO names (strings)")
     twice = [t for t, n in Counter(map(str, targets)).items() if n > 1]
     if twice:  # its seeds were played and counted twice
         raise DeintError(f"scenarios names {twice[0]!r} twice; name each scenario once")

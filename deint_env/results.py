@@ -29,6 +29,7 @@ import numpy as np
 
 from deint_env.errors import DeintError
 from deint_env.formats.files import check_output, read_bytes, short_name
+from deint_env.suites import SPLITS
 
 _write = os.write  # the one place bytes reach a results file (tests simulate a full disk here)
 
@@ -140,10 +141,16 @@ class EpisodeRecord:
         known = {**{k: data[k] for k in _IDENTITY}, **{k: data[k] for k in _OPTIONAL if k in data}}
         known["tags"] = tuple(known["tags"])
         metrics = {k: v for k, v in data.items() if k not in known}
-        for k, v in metrics.items():
-            if not (_metric_value(v) or (isinstance(v, list) and all(_metric_value(x) for x in v))):
-                raise DeintError(f"{where}: metric {k!r} is {json.dumps(v)[:40]}, not a number, null or a list of "
-                                 f"them")
+        for k, v in metrics.items():  # only pe is a list (one per source): a list accuracy reached a sum (TypeError)
+            if k == "pe" and isinstance(v, list):
+                if len(v) != data["n_sources"] or not all(_metric_value(x) for x in v):
+                    raise DeintError(f"{where}: metric 'pe' is {json.dumps(v)[:40]}, not a list of "
+                                     f"{data['n_sources']} numbers or nulls (one per source)")
+            elif not _metric_value(v):
+                raise DeintError(f"{where}: metric {k!r} is {json.dumps(v)[:40]}, not a number or null")
+        if data["split"] not in SPLITS:
+            raise DeintError(f"{where}: field 'split' is {json.dumps(data['split'])[:40]}, not one of "
+                             f"{', '.join(SPLITS)}")
         for k, (lo, hi, allowed) in _RANGES.items():
             values = data.get(k) if isinstance(data.get(k), list) else [data.get(k)]
             if any(x is not None and not lo - 1e-9 <= x <= hi + 1e-9 for x in values):

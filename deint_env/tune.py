@@ -354,6 +354,8 @@ def tune(policy: str, suite: str, *, division: str = "offline", budget: int = 20
     check_output(path)
     if os.path.realpath(path) == os.path.realpath(results):
         raise DeintError(f"--out {path} is the plays' results file {results}; name a different preset file")
+    if os.path.realpath(path) == os.path.realpath(work_dir):  # made a folder below, it failed only after every play
+        raise DeintError(f"--out {path} is the work folder --work {work_dir}; name a preset file (in it or elsewhere)")
     work_dir.mkdir(parents=True, exist_ok=True)
     targets = [f"{suite}/{e.name}" for e in entries] if names else [suite]
 

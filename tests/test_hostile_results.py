@@ -36,8 +36,8 @@ def _run(capsys, out: Path):
 
 
 @pytest.mark.parametrize("field,value,says", [
-    ("accuracy", "abc", "metric 'accuracy' is \"abc\", not a number, null or a list of them"),
-    ("pe", [0.1, "x"], "metric 'pe' is [0.1, \"x\"], not a number, null or a list of them"),
+    ("accuracy", "abc", "metric 'accuracy' is \"abc\", not a number or null"),
+    ("pe", [0.1, "x"], "metric 'pe' is [0.1, \"x\"], not a list of 2 numbers or nulls (one per source)"),
     ("score", True, "metric 'score' is true, not a number"),
     ("tags", [{}], "field 'tags' is [{}], not a list of strings"),
 ])

@@ -158,7 +158,8 @@ def _agile_chain(t: np.ndarray, free: np.ndarray, p: SearchParams) -> Chain | No
     if edges.size < 3:
         return None
     h = sum(np.histogram(tf[c:] - tf[:-c], edges)[0] for c in (1, 2, 3))
-    centre = np.sqrt(edges[:-1] * edges[1:])
+    with np.errstate(over="ignore"):  # bins past 1e154 (a pri_max of 1e300) hold no difference: an inf centre, unused
+        centre = np.sqrt(edges[:-1] * edges[1:])
     for bend in (False, True):  # lines first, for every candidate; parabolas where none passes
         for i in np.argsort(-h)[:5]:
             if h[i] < p.min_pulses:

@@ -72,6 +72,9 @@ def bin_centres(pri_min: float, pri_max: float, duration: float, min_width: floa
     centre tau_k, so over a record of duration D a train of PRI T keeps its phase only if
     |tau_k - T| D / T < T / 4, i.e. |tau_k - T| < T^2 / (4 D)."""
     out = [pri_min]
+    # no two pulses of the record are further apart than its duration, so bins past twice it stay empty; without
+    # this stop a pri_max of 1e300 squared the centres past float64 (OverflowError)
+    pri_max = min(pri_max, max(2.0 * duration, pri_min))
     while out[-1] < pri_max:
         out.append(out[-1] + max(out[-1] ** 2 / (8.0 * max(duration, 1e-300)), min_width))
         if len(out) > MAX_BINS:  # pri_min=1e-9 over a record of 5000 asked for ~10^8 bins (GiBs, minutes)

@@ -95,6 +95,14 @@ _N = 100_000  # the largest pulse or arrival count a parameter takes
 # the most arrivals looked ahead: the look-ahead is a tree search (a hit or a miss per arrival), exponential in
 # its depth (look_start=20 ran 500 pulses in 1 s, 30 in 28 s, 100 did not end)
 _MAX_LOOK = 20
+
+
+def _squared(z: float) -> float:
+    """z^2 for a width in deviations: any z >= 1e150 already admits every pulse, and squaring a larger one (a legal
+    gate=1e300) overflows float64."""
+    return min(z, 1e150) ** 2
+
+
 PARAMS = declare(
     Param("beam", int, 32, "hypotheses kept", low=1, high=_N),
     Param("start_beam", int, 256, "hypotheses kept during track initiation (at least beam)", low=1, high=_N),
@@ -233,7 +241,7 @@ class MHT:
         known_r = float(priors.spurious_rate) if stated else math.nan
         estimated = math.isnan(known_q) or math.isnan(known_r)
         self.cfg = Settings(
-            gate2=self.gate ** 2, jitter_var=model.jitter_var, interval_var=model.interval_var,
+            gate2=_squared(self.gate), jitter_var=model.jitter_var, interval_var=model.interval_var,
             log_gap=math.log(max(self.p_gap, _GAP_ESTIMATED) if estimated else self.p_gap),
             pulse_rate=float(np.sum(1.0 / priors.period)), known_q=known_q, known_r=known_r,
             start_until=float(np.max(phase + 4.0 * phase_std)) + t_max,
@@ -244,7 +252,7 @@ class MHT:
             start_beam=self.start_beam, nscan=self.nscan, look_start=self.look_start, look_restart=self.look_restart,
             look=self.look, dead=self.dead, reserve=self.reserve, initiate=initiate, look_init=self.look_init,
             margin=max(self.margin, self.margin_per_source * n), drift=self.drift, jump=self.jump,
-            log_jump=math.log(_JUMP_P), log_stay=math.log1p(-_JUMP_P), jump_z2=self.jump_z ** 2,
+            log_jump=math.log(_JUMP_P), log_stay=math.log1p(-_JUMP_P), jump_z2=_squared(self.jump_z),
             misfit=0.0 if priors.coincidence_resolution > 0 else self.misfit,
             # only priors that predict every first arrival (the gate narrower than a period) promise a start: a
             # vague period or an unknown phase promises a chain anywhere, harmonics and other sources' trains

@@ -67,6 +67,22 @@ def test_ctrl_c_while_the_package_imports_is_one_line(marker):
         assert said == ["deint: interrupted"], err[-2000:]
 
 
+def test_ctrl_c_that_an_import_turns_into_an_import_error_is_still_one_line(monkeypatch, capsys):
+    """numpy's loader re-raises what interrupts the loading of a compiled module as an ImportError (a
+    traceback 1 time in ~10 under load); once the handler has fired, any failed import means Ctrl-C.
+    Simulated: the handler has fired and the import fails."""
+    import deint_entry
+
+    monkeypatch.setitem(sys.modules, "deint_env.cli", None)  # `from deint_env.cli import main`: ImportError
+    monkeypatch.setattr(deint_entry, "_fired", [signal.SIGINT])
+    before = signal.getsignal(signal.SIGINT)
+    assert deint_entry.main() == 130
+    assert signal.getsignal(signal.SIGINT) is before
+    monkeypatch.setattr(deint_entry, "_fired", [])  # not interrupted: the import error is a real one
+    with pytest.raises(ImportError):
+        deint_entry.main()
+
+
 def test_an_inherited_ignored_sigint_stays_ignored():
     code, err = interrupted_at("gymnasium", ignored=True)  # nohup, `deint ... &`: Ctrl-C is not for it
     assert code == 0 and "Traceback" not in err and "interrupted" not in err, err[-2000:]

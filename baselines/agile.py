@@ -59,6 +59,10 @@ _LOG_2PI = math.log(2 * math.pi)
 _JUMP_TAIL = 1e-4  # random-level sources: runs of missed emissions less likely than this are not scored
 _JUMP_RUNS = 8  # ... nor longer than this many intervals (beyond them the source is reacquired)
 _JUMP_COLUMNS = 4096  # ... nor more (level counts, last level) groups than this
+# ... nor a search scoring more (hypotheses x levels x runs) terms a pulse than this: agile-v2's three random-level
+# sources at the default beam score 5.8e5, one source of 64 levels 5.3e5 (31 s for 1000 pulses, loaded machine),
+# three of them 3.2e6 and the beam's largest (4096) over three levels 3.1e6 (over 60 s)
+_JUMP_WORK = 2**20
 # an offset bank's models this many nats below its best one's weight do not hold back its coasting (`_coast`)
 _FAINT = 12.0
 
@@ -88,12 +92,14 @@ class _Jumps:
         self.levels = [banks[i][0].jumps for i in self.index]
         self.columns = []
         for lv in self.levels:
-            r = runs
-            while True:  # many levels: fewer runs, so the mixture stays small
-                cols = lv.sequences(r)
-                if cols[0].size <= _JUMP_COLUMNS or r == 1:
+            # many levels: fewer runs, so the mixture stays small.  Longer runs are tried from 1 up: their groups
+            # multiply by up to the level count a run, so starting long built ~10^10 groups for 64 levels (hours)
+            r, cols = 1, lv.sequences(1)
+            while r < runs:
+                longer = lv.sequences(r + 1)
+                if longer[0].size > _JUMP_COLUMNS:
                     break
-                r -= 1
+                r, cols = r + 1, longer
             self.columns.append(cols)
         self.reach = [float(c[0].max()) for c in self.columns]  # the longest run scored, over T
         self.log_q = math.log(q)
@@ -237,6 +243,11 @@ class PathSearch:
         self.jump_src = np.isin(np.arange(n), self.jumps.index)
         self.beam = self.jump_beam * (1 + len(self.jumps.index)) if self.jump_beam and self.jumps.index \
             else self.base_beam
+        work = self.beam * sum(lv.ratio.size * c[0].size for lv, c in zip(self.jumps.levels, self.jumps.columns))
+        if work > _JUMP_WORK:
+            raise NotApplicable(f"{type(self).__name__}: {self.beam} hypotheses x the random-level sources' "
+                                f"levels x runs scored = {work:,} terms a pulse, at most {_JUMP_WORK:,} (minutes per "
+                                f"1000 pulses beyond); fewer levels or a smaller beam")
         # sources whose bank holds one model per cycle offset (`Modulation.random_start`): its models
         # predict arrivals a whole ramp apart, so the best one alone cannot tell a miss
         self.offset_bank = np.array([len(b) > 1 and len({m.kind for m in b}) == 1 for b in banks])

@@ -317,3 +317,33 @@ def test_a_random_cycle_position_gets_one_model_per_position():
     for o, model in enumerate(bank):  # model o at emission n: the ramp at position n + o
         ratio = model.table[n % 10] @ model.unit
         assert np.allclose(ratio, (1 + 1.2 * ((n + o) % 10) / 9) / 1.6)
+
+
+@pytest.mark.parametrize("levels,q", [(3, 0.2), (3, 0.001), (8, 0.1), (16, 0.1), (64, 0.1)])
+def test_random_level_mixtures_take_the_longest_runs_that_fit(levels, q):
+    """A random-level source's mixture scores runs of up to `runs` intervals, fewer where their (level
+    counts, last level) groups pass `_JUMP_COLUMNS`: the longest that fit.  They were found by building
+    the longest first and shortening, which for 64 levels meant ~10^10 groups (hours) before the first
+    check; now they are built from one run up."""
+    from baselines import agile, pri_models
+
+    mod = Modulation("random_stagger", pattern=tuple(float(x) for x in range(1, levels + 1)))
+    lv = pri_models.from_modulation(mod, 10.0).jumps
+    runs = max(1, min(agile._JUMP_RUNS, math.ceil(math.log(agile._JUMP_TAIL) / math.log(q)) + 1))
+    got = agile._Jumps([(pri_models.from_modulation(mod, 10.0),)], q).columns[0]
+    r = max(got[1])  # the longest run scored
+    assert r == runs or (lv.sequences(r + 1)[0].size > agile._JUMP_COLUMNS >= got[0].size)
+    assert all(np.array_equal(a, b) for a, b in zip(got, lv.sequences(r)))
+
+
+def test_a_random_level_search_too_large_to_run_is_refused_up_front(tmp_path, capsys):
+    """Three random-level sources of 64 levels each: renewal-ml's default beam (64 x 4) scores 3.2e6
+    terms a pulse (over 60 s for 1000 pulses); it is refused in one line before any pulse, not run."""
+    pulses, priors, _ = write_file(tmp_path, MIXES[1], 0, 0.0, 0.1, n_pulses=50)
+    d = json.loads(priors.read_text())
+    d["modulation"] = [{"kind": "random_stagger", "pattern": [1.0 + 0.01 * k for k in range(64)]}] * 3
+    priors.write_text(json.dumps(d))
+    assert deint(["label", str(pulses), "--policy", "renewal-ml", "--priors", str(priors),
+                  "-o", str(tmp_path / "l.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "terms a pulse, at most" in err and not (tmp_path / "l.csv").exists(), err

@@ -60,8 +60,8 @@ _JUMP_TAIL = 1e-4  # random-level sources: runs of missed emissions less likely 
 _JUMP_RUNS = 8  # ... nor longer than this many intervals (beyond them the source is reacquired)
 _JUMP_COLUMNS = 4096  # ... nor more (level counts, last level) groups than this
 # ... nor a search scoring more (hypotheses x levels x runs) terms a pulse than this: agile-v2's three random-level
-# sources at the default beam score 5.8e5, one source of 64 levels 5.3e5 (31 s for 1000 pulses, loaded machine),
-# three of them 3.2e6 and the beam's largest (4096) over three levels 3.1e6 (over 60 s)
+# sources at the default beam score 5.8e5 (~8 ms a pulse); three sources of 64 levels 3.2e6 (~0.1 s a pulse: 200
+# pulses in 20 s, loaded machine), beam=4096 over three 3-level sources 1.1e6 (~40 ms a pulse)
 _JUMP_WORK = 2**20
 # an offset bank's models this many nats below its best one's weight do not hold back its coasting (`_coast`)
 _FAINT = 12.0

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +16,7 @@ from deint_env.policies import PolicyInfo, make_policy
 from deint_env.runner import play
 from deint_env.simulate import simulate
 from deint_env.suites import resolve_scenario
+from hostile_cli import deint_script
 
 SCENARIO = "paper-v0/mk94-two-var1"
 
@@ -302,9 +302,7 @@ def test_help_and_version(capsys):
 
 # ---- the installed script ------------------------------------------------------------------------------------
 def test_console_script_end_to_end(tmp_path):
-    beside = Path(sys.executable).with_name("deint")  # the venv's script, even when PATH lacks the venv
-    exe = str(beside) if beside.exists() else shutil.which("deint")
-    assert exe, "the deint console script is not installed (pip install -e .)"
+    exe = deint_script()
     run = lambda *a: subprocess.run([exe, *map(str, a)], cwd=tmp_path, capture_output=True, text=True)
     r = run("simulate", SCENARIO, "--seed", 2, "-o", "p.csv", "--true-priors-out", "t.json")
     assert r.returncode == 0, r.stderr

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import io
 import os
-import shutil
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +20,7 @@ import deint_env
 from deint_env.cli import main
 from deint_env.errors import DeintError
 from deint_env.play import play
-from hostile_cli import one_line
+from hostile_cli import deint_script, one_line
 
 BIG = "100000000000000000000"
 
@@ -33,13 +31,6 @@ def in_tmp(tmp_path, monkeypatch):
 
 
 # ---- Ctrl-C while Python imports the package ---------------------------------------------------------
-def deint_script() -> str:
-    beside = Path(sys.executable).with_name("deint")  # the venv's script, even when PATH lacks the venv
-    script = str(beside) if beside.exists() else shutil.which("deint")
-    assert script, "the deint console script is not installed (pip install -e .)"
-    return script
-
-
 def interrupted_at(marker: str, *, ignored: bool = False) -> tuple[int, str]:
     """Run `deint --help`, sending SIGINT as soon as Python has imported a module named like `marker`
     (PYTHONPROFILEIMPORTTIME reports each import on stderr as it ends): mid-import, whatever the load."""

@@ -12,31 +12,16 @@ are made on other seeds.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from _common import files_summary  # noqa: E402
-from independent_agile import (agile_file, grid, library_priors, matched_accuracy, read_labels,  # noqa: E402
-                               write_pulses)
-
-from deint_env.cli import main  # noqa: E402
-
-
-def label(folder: Path, policy: str, truth) -> tuple[float, float]:
-    """(matched accuracy, NaN if the CLI refused the file; wall seconds)."""
-    t0 = time.perf_counter()
-    with contextlib.redirect_stderr(io.StringIO()):
-        code = main(["label", str(folder / "p.csv"), "--policy", policy, "--priors", str(folder / "pr.json"),
-                     "-o", str(folder / "l.csv")])
-    seconds = time.perf_counter() - t0
-    return (matched_accuracy(read_labels(folder / "l.csv"), truth) if code == 0 else float("nan")), seconds
+from bench_blind_agile import label  # noqa: E402
+from independent_agile import agile_file, grid, library_priors, matched_accuracy, write_pulses  # noqa: E402
 
 
 def run(seeds: list[int], policies: list[str], scenes: list[str] | None, phases: bool) -> None:
@@ -52,7 +37,8 @@ def run(seeds: list[int], policies: list[str], scenes: list[str] | None, phases:
             (folder / "pr.json").write_text(json.dumps(library_priors(f, miss, spur, phases=phases)))
             cells = []
             for p in policies:
-                acc, seconds = label(folder, p, f.source)
+                labels, seconds = label(folder, p, ["--priors", str(folder / "pr.json")])
+                acc = matched_accuracy(labels, f.source) if labels is not None else float("nan")
                 accs[p].append(acc)
                 cells.append(f"{acc:.3f} {seconds:5.1f}s".rjust(20))
             print(f"{name:30s}" + "".join(cells), flush=True)

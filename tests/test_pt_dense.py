@@ -8,6 +8,9 @@ gates: along the true labelling the true source is not the likeliest at 3 of the
 tracks on other sources' pulses for good: 0.09 of these 800 labels right (fdp 0.98).  pt-post now
 acquires by the start beam's MAP decisions, as `dokf` does, before the teacher takes over: 0.94.
 Generator seeds >= 100 (seeds 1-3 are the issue's acceptance check).
+
+At jitter 0.06 the start is acquired but single draws after it lose tracks for good (module doc of
+baselines/pt.py, 'Particles'): 32 teachers resampled by how well they predict keep them.
 """
 
 from __future__ import annotations
@@ -19,3 +22,9 @@ def test_pt_post_acquires_8_dense_sources(tmp_path):
     acc = run_cell(tmp_path, 8, 0.01, "zero", 800, 101, ("fdp", "pt-post"))
     assert acc["fdp"] > 0.8, acc
     assert acc["pt-post"] >= 0.5, acc
+
+
+def test_pt_post_particles_hold_8_jittery_sources(tmp_path):
+    acc = run_cell(tmp_path, 8, 0.06, "zero", 800, 103, ("fdp", "pt-post", "pt-post:particles=1"))
+    assert acc["pt-post:particles=1"] < 0.5, acc  # the published PT, one teacher, collapses on this file
+    assert acc["pt-post"] >= 0.65, acc  # 0.70 measured (fdp 0.77)

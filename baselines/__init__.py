@@ -127,6 +127,10 @@ POLICIES = (
     PolicyInfo("cdif", "baselines.blind.policy:CDIFPolicy", modes=BLIND, version=2,
                division_params=(("low-latency", "window=65"),),
                description="blind: Mardia's CDIF histogram (1989) + sequence search + re-association (window=1000)"),
+    # issue #22: cdif's trains and PRI models made anchored priors, then the anchored renewal-ml (docs/blind.md)
+    PolicyInfo("cdif-renewal", "baselines.blind.identified:IdentifiedRenewal", modes=BLIND,
+               description="blind: cdif finds the trains and identifies their PRI models, the anchored renewal-ml "
+                           "tracks them (window=10001)"),
     PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND, version=2,
                description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association"),
     PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND, version=2,

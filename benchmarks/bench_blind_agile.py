@@ -24,7 +24,7 @@ from independent_agile import agile_file, grid, matched_accuracy, read_labels, w
 
 from deint_env.cli import main  # noqa: E402
 
-POLICIES = "cdif,sdif,pri-transform,dbscan,hdbscan,renewal-ml,seq"
+POLICIES = "cdif,cdif-renewal,sdif,pri-transform,dbscan,hdbscan,renewal-ml,seq"
 
 
 def label(folder: Path, policy: str, args: list[str]) -> tuple[object, float]:

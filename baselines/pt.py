@@ -180,6 +180,7 @@ _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period dev
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
 _AHEAD_STEPS = np.array([[1.0], [2.0]])  # those arrivals, in steps of (2.8)
 _PARTICLES = 32  # pt-post's teachers after a located start (module doc, 'Particles')
+_MAX_PARTICLES = 1024  # each costs one PT's work a pulse (about 0.1 ms on 8 sources): 1024 is ~0.1 s a pulse
 _AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")
@@ -225,7 +226,7 @@ PARAMS = declare(
     Param("particles", int, None, "pt-post: teachers run side by side after the start, each drawing its own "
           f"source, weighted by how well it predicted each pulse and resampled (none: {_PARTICLES} when the priors "
           "place every period within half of itself, else 1, the published PT; module doc, 'Particles')", low=1,
-          optional=True),
+          high=_MAX_PARTICLES, optional=True),
     Param("beam_span", float, _START_SPAN, "dokf: longest prior periods from the first pulse during which it decides "
           "by its beam of labellings (none: the whole episode when the priors place every period within half of "
           "itself, else 2; module doc, 'Start beam')", low=0, low_open=True, optional=True),

@@ -184,8 +184,9 @@ def test_policy_parameters_are_checked():
         make_policy("pt-prior:coast=true")
     with pytest.raises(DeintError, match="reset_after"):
         make_policy("pt-post:coast=true,reset_after=0")
-    with pytest.raises(DeintError, match="particles"):
-        make_policy("pt-post:particles=0")
+    for bad in (0, 1025):
+        with pytest.raises(DeintError, match="particles"):
+            make_policy(f"pt-post:particles={bad}")
     blind = simulate(find_entry("blind-v0/" + _first_blind()).spec, 0)
     with pytest.raises(DeintError, match="needs priors"):
         make_policy("pt-prior").reset(blind.priors, {})

@@ -244,6 +244,12 @@ def _systematic(logw: np.ndarray, n: int, u: float) -> np.ndarray:
     return np.searchsorted(cum, (u + np.arange(n)) / n, side="right")
 
 
+def _draw(c: Candidates, best: int, u: float) -> int:
+    """The teacher's draw: the hypothesis of (4.1)'s posterior where its cumulative probability passes u."""
+    cum = np.cumsum(np.exp(c.score - c.score[best]))
+    return min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+
+
 class ProbabilisticTeacher:
     """MK94 IV's PT with `teacher` "prior" (IV-2), "posterior" (Step 1, (4.1)-(4.3)) or "decision"
     (the MAP decision teaches: `dokf`); `label`, `coast` (None: on, with reset_after=4, unless the
@@ -473,21 +479,15 @@ class ProbabilisticTeacher:
         best = int(np.argmax(c.score))
         self._pulses += counted
         lam = self._spurious_prob(y)
-        if lam > 0 and self.teacher != "prior":
-            # Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
-            # (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)
-            pulse = (1.0 - lam) * math.exp(float(c.miss[best]))
-            lam = lam / (lam + pulse)
-            if is_spurious(float(c.e[best]), float(c.s[best]), lam, float(c.pred.period[best]) ** 2 / 12.0):
-                self._called += counted
-                return self.n
+        if lam > 0 and self.teacher != "prior" and self._called_spurious(c, best, lam):
+            self._called += counted
+            return self.n
         if self.teacher == "prior":
             pick = int(np.flatnonzero(c.source == bisect_right(self._cum_pi, u))[0])
         elif self.teacher == "decision":
             pick = best
         else:
-            cum = np.cumsum(np.exp(c.score - c.score[best]))
-            pick = min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+            pick = _draw(c, best, u)
         self._apply(c, pick, counted)
         return int(c.source[best]) if self.label == "map" else int(c.source[pick])
 
@@ -512,18 +512,12 @@ class ProbabilisticTeacher:
             top = float(c.score[best])
             fit = top + math.log(float(np.sum(np.exp(c.score - top)))) + log_pulse
             pick = run = None
+            spurious = False
             if lam > 0:
-                spread = float(c.s[best]) + float(c.pred.period[best]) ** 2 / 12.0
-                e = float(c.e[best])
-                fit = np.logaddexp(fit, math.log(lam) + float(self.log_pi[c.source[best]])
-                                   - 0.5 * (math.log(spread) + e * e / spread))
-                pulse = (1.0 - lam) * math.exp(float(c.miss[best]))
-                spurious = is_spurious(e, float(c.s[best]), lam / (lam + pulse), float(c.pred.period[best]) ** 2 / 12.0)
-            else:
-                spurious = False
+                fit = np.logaddexp(fit, self._spurious_score(0.0, c, best, lam))
+                spurious = self._called_spurious(c, best, lam)
             if not spurious:
-                cum = np.cumsum(np.exp(c.score - top))
-                pick = min(int(np.searchsorted(cum, u * cum[-1], side="right")), c.score.size - 1)
+                pick = _draw(c, best, u)
                 run = self._apply(c, pick, False)
             labels.append(self.n if spurious else int(c.source[best if self.label == "map" else pick]))
             runs.append(run)
@@ -543,6 +537,20 @@ class ProbabilisticTeacher:
             self._particles = list(zip((logw - logw[lead]).tolist(), states))
         self._load(states[lead])
         return labels[lead]
+
+    def _called_spurious(self, c: Candidates, best: int, lam: float) -> bool:
+        """Theorem 1 (21)-(24) on the best hypothesis, its prior odds against "spurious" being
+        (1 - lambda) P_D q^m : lambda (P_D = 1 - q, the detection probability; m its misses)."""
+        pulse = (1.0 - lam) * math.exp(float(c.miss[best]))
+        spread = float(c.pred.period[best]) ** 2 / 12.0
+        return is_spurious(float(c.e[best]), float(c.s[best]), lam / (lam + pulse), spread)
+
+    def _spurious_score(self, score: float, c: Candidates, best: int, lam: float) -> float:
+        """`score` plus the log probability of "spurious" at this pulse: log lambda and Theorem 1's spread density
+        around the best hypothesis (its variance plus a uniform arrival's over one period)."""
+        spread = float(c.s[best]) + float(c.pred.period[best]) ** 2 / 12.0
+        e = float(c.e[best])
+        return score + math.log(lam) + float(self.log_pi[c.source[best]]) - 0.5 * (math.log(spread) + e * e / spread)
 
     def _apply(self, c: Candidates, pick: int, counted: bool) -> int:
         """(4.4): the KF update of the source of hypothesis `pick`, and its arrival bookkeeping."""
@@ -596,11 +604,7 @@ class ProbabilisticTeacher:
             expanded.append((self._save(), c))
             children = (score + log_pulse) + c.score
             if lam > 0:
-                b = int(np.argmax(c.score))
-                spread = float(c.s[b]) + float(c.pred.period[b]) ** 2 / 12.0
-                e = float(c.e[b])
-                children = np.append(children, score + math.log(lam) + float(self.log_pi[c.source[b]])
-                                     - 0.5 * (math.log(spread) + e * e / spread))
+                children = np.append(children, self._spurious_score(score, c, int(np.argmax(c.score)), lam))
             scores.append(children)
         flat = np.concatenate(scores)
         owner = np.repeat(np.arange(len(scores)), [ch.size for ch in scores])

@@ -94,12 +94,9 @@ ANCHORED = ("agile-kf", "renewal-ml")
 MIXES = (("random_stagger", "sliding", "sinusoidal"), ("markov_stagger", "random_stagger", "sinusoidal"),
          ("sliding", "markov_stagger", "sliding"))
 FAST = [(MIXES[0], 0, 0.3, 0.2), (MIXES[2], 1, 0.3, 0.2)]
-# The one file of the grid below the target: renewal-ml 0.881 (its wobulated train is held by the two
-# random-level ones; 0.973 with a beam of 256 instead of the default 192), agile-kf 0.26.
-SHORT = (MIXES[1], 11, 0.3, 0.2)
-CASES = [(mix, seed, q, s) for mix in MIXES for seed in (10, 11) for q in (0.0, 0.15, 0.3) for s in (0.1, 0.2)]
-GRID = [pytest.param(*case, marks=pytest.mark.xfail(strict=True, reason="renewal-ml 0.881 on this file"))
-        if case == SHORT else case for case in CASES]
+# The grid's last file below the target, (MIXES[1], 11, 0.3, 0.2), had renewal-ml at 0.881 when the grid was
+# written (its wobulated train held by the two random-level ones); version 3 labels 0.973 of it, version 4 0.976.
+GRID = [(mix, seed, q, s) for mix in MIXES for seed in (10, 11) for q in (0.0, 0.15, 0.3) for s in (0.1, 0.2)]
 
 
 def check_file(tmp_path, kinds, seed, missing, spurious) -> None:

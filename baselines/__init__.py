@@ -132,10 +132,12 @@ POLICIES = (
     # issue #22: cdif's trains and PRI models made anchored priors, then the anchored renewal-ml (docs/blind.md).
     # Version 2: blind renewal-ml's trains, their models fitted, as a second source; the least-cost labelling of
     # the two tracked and blind renewal-ml's own is given out (independent agile files, seeds 1-2, --n-sources 3:
-    # mean 0.399 -> 0.520, not applicable on 12 of 50 -> none)
-    PolicyInfo("cdif-renewal", "baselines.blind.identified:IdentifiedRenewal", modes=BLIND, version=2,
+    # mean 0.399 -> 0.520, not applicable on 12 of 50 -> none).  Version 3: each labelling's trains refitted by
+    # least squares over their emission counts (baselines/blind/train_fit.py) and tracked again while the cost falls
+    PolicyInfo("cdif-renewal", "baselines.blind.identified:IdentifiedRenewal", modes=BLIND, version=3,
                description="blind: trains found by cdif and by blind renewal-ml, their PRI models identified, "
-                           "tracked by the anchored renewal-ml; the least-cost labelling (window=10001)"),
+                           "tracked by the anchored renewal-ml, refitted and tracked again; the least-cost labelling "
+                           "(window=10001)"),
     PolicyInfo("sdif", "baselines.blind.policy:SDIFPolicy", modes=BLIND, version=2,
                description="blind: Milojevic & Popovic's SDIF histogram (1992) + sequence search + re-association"),
     PolicyInfo("pri-transform", "baselines.blind.policy:PRITransformPolicy", modes=BLIND, version=2,

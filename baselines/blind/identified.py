@@ -41,6 +41,7 @@ met.  About 22 s of CPU a file of 1000 pulses, up to 33 s.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -224,26 +225,34 @@ def fit_model(toa: np.ndarray) -> PRIModel | None:
     return cdif.modulations()[0]
 
 
+def labelled_trains(toa: np.ndarray, labels: np.ndarray, n_labels: int,
+                    model_of: Callable[[np.ndarray], tuple[float, Modulation | None] | None]) -> list[IdentifiedTrain]:
+    """Each label's pulses (of `MIN_TRAIN` or more) as a train, its (period, modulation) by `model_of` (None: no
+    train), kept where its period exceeds the record's median spacing; the largest first."""
+    spacing = float(np.median(np.diff(toa))) if toa.size > 1 else 0.0
+    out = []
+    for lab in range(n_labels):
+        own = toa[labels == lab]
+        model = model_of(own) if own.size >= MIN_TRAIN else None
+        if model is not None and model[0] > spacing:
+            out.append(IdentifiedTrain(lab, model[0], model[1], int(own.size)))
+    return sorted(out, key=lambda t: -t.pulses)
+
+
+def _cdif_model(own: np.ndarray) -> tuple[float, Modulation | None]:
+    model, median = fit_model(own), float(np.median(np.diff(own)))
+    if model is not None and abs(model.period / median - 1) <= PERIOD_CHECK:
+        return as_modulation(model)
+    return median, Modulation("constant")
+
+
 def fitted_trains(toa: np.ndarray, labels: np.ndarray, n_labels: int) -> list[IdentifiedTrain]:
     """Blind renewal-ml's trains, each one's PRI model fitted by cdif on its pulses alone.  A train whose
     model cdif finds at a period off its median interval (by more than `PERIOD_CHECK`), or not at all, is
     taken for a constant PRI at that interval, as blind renewal-ml tracked it: on a jittered train cdif's
     largest train can be a multiple's or a stray lattice (seed 1: 72.9 and 12.9 for trains of PRI 12.1 and
     25.6), and the default bank, free to fit anything, costs least yet labels worse (seed 1: mean 0.50 against 0.55)."""
-    spacing = float(np.median(np.diff(toa))) if toa.size > 1 else 0.0
-    out = []
-    for lab in range(n_labels):
-        own = toa[labels == lab]
-        if own.size < MIN_TRAIN:
-            continue
-        model, median = fit_model(own), float(np.median(np.diff(own)))
-        if model is not None and abs(model.period / median - 1) <= PERIOD_CHECK:
-            period, mod = as_modulation(model)
-        else:
-            period, mod = median, Modulation("constant")
-        if period > spacing:
-            out.append(IdentifiedTrain(lab, period, mod, int(own.size)))
-    return sorted(out, key=lambda t: -t.pulses)
+    return labelled_trains(toa, labels, n_labels, _cdif_model)
 
 
 def tracked(toa: np.ndarray, trains: list[IdentifiedTrain], stated: Priors) -> Candidate:
@@ -253,18 +262,16 @@ def tracked(toa: np.ndarray, trains: list[IdentifiedTrain], stated: Priors) -> C
     return Candidate(trains, to_label[run.labels], run.cost)
 
 
+def _least_squares_model(own: np.ndarray) -> tuple[float, Modulation | None] | None:
+    fit = fit_train(own)
+    return None if fit is None else (fit.period, fit.modulation)
+
+
 def refit_trains(toa: np.ndarray, labels: np.ndarray, n_labels: int) -> list[IdentifiedTrain]:
-    """Each label's pulses with its PRI model fitted by `fit_train` (least squares over the emission counts)."""
-    spacing = float(np.median(np.diff(toa))) if toa.size > 1 else 0.0
-    out = []
-    for lab in range(n_labels):
-        own = toa[labels == lab]
-        fit = fit_train(own)
-        # its pulses as labelled, not those the fit kept: the spurious rate is measured from the pulses no train
-        # took, as for the other candidates (counting only the kept ones made spurious pulses cheap)
-        if fit is not None and fit.period > spacing:
-            out.append(IdentifiedTrain(lab, fit.period, fit.modulation, int(own.size)))
-    return sorted(out, key=lambda t: -t.pulses)
+    """Each label's pulses with its PRI model fitted by `fit_train` (least squares over the emission counts).  A
+    train counts all its pulses as labelled, not only those the fit kept: the spurious rate is measured from the
+    pulses no train took, as for the other candidates (counting only the kept ones made spurious pulses cheap)."""
+    return labelled_trains(toa, labels, n_labels, _least_squares_model)
 
 
 def refined(toa: np.ndarray, start: Candidate, stated: Priors, n_labels: int, rounds: int) -> Candidate:

@@ -175,6 +175,23 @@ def test_pt_post_particles_where_the_priors_are_vague_or_located():
     assert labels.size == 300
 
 
+def test_pt_post_particles_coast_only_where_a_miss_is_told_from_jitter():
+    """mk94-two-var3 (clean channel, jitter std 1.73 against periods 11 and 17, priors 10 and 22): 5 jitter
+    deviations pass half a period, so a pulse past the midpoint of two arrivals may be a late one.  Version 5's
+    particles took VI-C-3's remedies there, drew misses for late pulses, reset their tracks and gave the trains
+    to each other (accuracy 0.416 on this validation episode); version 6's do not coast there (0.602), and do
+    on CLEAN_TWO (jitter 0.1)."""
+    entry = find_entry("paper-v0/mk94-two-var3")
+    seed = entry.seeds("validation")[0]
+    policy = make_policy("pt-post")
+    res = play(policy, simulate(entry.spec, seed), policy_seed=seed)
+    assert policy._particles is not None and not policy.coast
+    assert res.metrics["accuracy"] >= 0.55, res.metrics["accuracy"]
+    policy = make_policy("pt-post")
+    play(policy, simulate(CLEAN_TWO, 0), policy_seed=3)
+    assert policy.coast
+
+
 def test_policy_parameters_are_checked():
     with pytest.raises(DeintError, match="label"):
         make_policy("pt-post:label=mode")

@@ -138,8 +138,10 @@ POLICIES = (
     # Version 2: blind renewal-ml's trains, their models fitted, as a second source; the least-cost labelling of
     # the two tracked and blind renewal-ml's own is given out (independent agile files, seeds 1-2, --n-sources 3:
     # mean 0.399 -> 0.520, not applicable on 12 of 50 -> none).  Version 3: each labelling's trains refitted by
-    # least squares over their emission counts (baselines/blind/train_fit.py) and tracked again while the cost falls
-    PolicyInfo("cdif-renewal", "baselines.blind.identified:IdentifiedRenewal", modes=BLIND, version=3,
+    # least squares over their emission counts (baselines/blind/train_fit.py) and tracked again while the cost falls.
+    # Version 4: a third labelling from trains found whole by their frames (baselines/blind/frame_seed.py: sweeps,
+    # staggers); a spurious rate of at least 0.05 where the trains leave fewer pulses over
+    PolicyInfo("cdif-renewal", "baselines.blind.identified:IdentifiedRenewal", modes=BLIND, version=4,
                description="blind: trains found by cdif and by blind renewal-ml, their PRI models identified, "
                            "tracked by the anchored renewal-ml, refitted and tracked again; the least-cost labelling "
                            "(window=10001)"),

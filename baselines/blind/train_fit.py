@@ -226,14 +226,18 @@ def _refine(t: np.ndarray, n: np.ndarray, keep: np.ndarray) -> tuple[_Model | No
     return best, keep, score
 
 
-def fit_train(t: np.ndarray) -> TrainFit | None:
-    """The PRI model of a train's pulses (sorted TOAs), chosen by BIC, from the first counting of lower `_score`;
-    None for too few pulses.  A sweep or wobulation shallower than `MIN_DEPTH` is taken for a constant PRI: a
-    jittered train's random walk fits one."""
+def fit_train(t: np.ndarray, counts: np.ndarray | None = None) -> TrainFit | None:
+    """The PRI model of a train's pulses (sorted TOAs), chosen by BIC, from the first counting of lower `_score`
+    (from the intervals, or `counts` where given: a frame's, -1 for a pulse not counted); None for too few pulses.
+    A sweep or wobulation shallower than `MIN_DEPTH` is taken for a constant PRI: a jittered train's random walk
+    fits one."""
     t = np.asarray(t, dtype=np.float64)
     if t.size < MIN_PULSES:
         return None
-    runs = [r for r in (_refine(t, *first_counts(t, follow)) for follow in (True, False)) if r[0] is not None]
+    starts = [first_counts(t, follow) for follow in (True, False)]
+    if counts is not None:
+        starts.append((np.asarray(counts), np.asarray(counts) >= 0))
+    runs = [r for r in (_refine(t, *start) for start in starts) if r[0] is not None]
     if not runs:
         return None
     model, keep, _ = min(runs, key=lambda r: r[2])

@@ -15,7 +15,8 @@ the env's own keys, `pulse` (the index of the pulse this step labels, -1 before 
 pulse and at reset), `true_label` (its source in the env's label convention, n_labels = spurious;
 anchored scenarios: the right label; blind: the source id, not a track name) and `reference_label`
 (the policy's label of it); both -1 where `pulse` is -1.  During the first `lag` steps no pulse is
-labelled and the action (spurious) is ignored by the env.
+labelled and the action (spurious) is ignored by the env.  The priors' `modulation` (agile-v2's: a list of
+dicts, which HDF5 cannot hold) is recorded as its JSON text.
 
 The dataset is written into a temporary directory beside its destination and renamed into place only
 when complete; an existing dataset is never overwritten.
@@ -23,6 +24,7 @@ when complete; an existing dataset is never overwritten.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -115,7 +117,7 @@ class DemoEnv(gym.Env):
         super().reset(seed=seed)
         obs, info = self._env.reset(seed=seed)
         self._k = 0
-        return obs, {**info, "pulse": NO_PULSE, "true_label": NO_PULSE, "reference_label": NO_PULSE}
+        return obs, {**recordable(info), "pulse": NO_PULSE, "true_label": NO_PULSE, "reference_label": NO_PULSE}
 
     def step(self, action):
         j = self._k - self.lag
@@ -123,7 +125,15 @@ class DemoEnv(gym.Env):
         obs, reward, terminated, truncated, info = self._env.step(action)
         extra = ({"pulse": j, "true_label": int(self._truth[j]), "reference_label": int(self._reference[j])} if j >= 0
                  else {"pulse": NO_PULSE, "true_label": NO_PULSE, "reference_label": NO_PULSE})
-        return obs, float(reward), terminated, truncated, {**info, **extra}
+        return obs, float(reward), terminated, truncated, {**recordable(info), **extra}
+
+
+def recordable(info: dict[str, Any]) -> dict[str, Any]:
+    """`info` with the priors' modulations as JSON text: a list of dicts has no HDF5 type (h5py's TypeError)."""
+    priors = info.get("priors")
+    if not isinstance(priors, dict) or "modulation" not in priors:
+        return info
+    return {**info, "priors": {**priors, "modulation": json.dumps(priors["modulation"])}}
 
 
 @contextmanager

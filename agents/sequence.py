@@ -50,7 +50,9 @@ ARCHITECTURE = "seq-pointer"
 FEATURE_LAYOUT = "pointer-pairs"
 FEATURE_VERSION = 2
 DEFAULT_MARGIN = 2.0  # ChainDecoder's margin in play (chosen on validation seeds: 0 and 1e9 did worse)
-MAX_PULSES = 100_000  # a longer record is refused (reset): at about 1 ms a pulse it would run for minutes
+# a longer record is refused (reset): at about 1.6 ms a pulse (10^4 pulses: 16 s of CPU) 25,000 take 40 s; the
+# 10^5 it allowed took minutes
+MAX_PULSES = 25_000
 DECODER_VERSION = 2  # bump when ChainDecoder's labels change: results are keyed on it with the checkpoint
 BACK_MULTIPLES = (1.0, 2.0, 3.0)  # t_i - m d
 FORWARD_MULTIPLES = (1.0, 2.0, 3.0)  # t_j + m d (the look-ahead)
@@ -373,8 +375,8 @@ class SequencePolicy:
             raise NotApplicable("seq finds its own trains: blind scenarios only (mapping chains to prior tracks is "
                                 "not done)")
         self._amp = bool(info.get("has_amplitude", False))
-        if (info.get("n_pulses") or 0) > MAX_PULSES:  # ~1 ms a pulse on a CPU: minutes beyond this
-            raise DeintError(f"seq labels at most {MAX_PULSES} pulses in one run (about 1 ms a pulse); this "
+        if (info.get("n_pulses") or 0) > MAX_PULSES:
+            raise DeintError(f"seq labels at most {MAX_PULSES} pulses in one run (about 1.6 ms a pulse); this "
                              f"record has {info['n_pulses']}: split it into files of fewer pulses")
         cap = int(info.get("n_pulses") or 1024)
         self._toa = np.zeros(cap)

@@ -686,13 +686,16 @@ class RenewalML(PathSearch):
     # it (so a record costs at most twice its first 4096 pulses more), and its labels are mapped onto the
     # labels already given out, which cannot change.
     _CHECKPOINTS = (64, 128, 256, 512, 1024, 2048, 4096)
-    MAX_PULSES = 100_000  # blind: about 0.5 ms per pulse, so a larger record is refused rather than run for minutes
+    # blind: about 2 ms a pulse (10^4 pulses of three trains: 20 s of CPU; the 10^5 it allowed ran for minutes),
+    # so a larger record is refused rather than run past a minute
+    MAX_PULSES = 20_000
 
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         self._measure = priors.blind and not priors.jitter_std > 0
         if priors.blind and (info.get("n_pulses") or 0) > self.MAX_PULSES:
-            raise DeintError(f"renewal-ml in blind mode labels at most {self.MAX_PULSES} pulses (about 0.5 ms a "
-                             f"pulse); this record has {info['n_pulses']}: use cdif or sdif, or split the file")
+            raise DeintError(f"renewal-ml in blind mode labels at most {self.MAX_PULSES} pulses (about 2 ms a "
+                             f"pulse); this record has {info['n_pulses']}: split it into files of at most "
+                             f"{self.MAX_PULSES} pulses, or use cdif or sdif (up to 100000)")
         if not self._measure:
             super().reset(priors, info)
             return

@@ -204,7 +204,9 @@ _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period dev
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
 _AHEAD_STEPS = np.array([[1.0], [2.0]])  # those arrivals, in steps of (2.8)
 _PARTICLES = 32  # pt-post's teachers after a located start (module doc, 'Particles')
-_MAX_PARTICLES = 1024  # each costs one PT's work a pulse (about 0.1 ms on 8 sources): 1024 is ~0.1 s a pulse
+# each costs one PT's work a pulse (about 0.08 ms on 8 sources): 256 label a 1000-pulse episode in about 22 s of CPU
+# (1024, the bound before, took 86 s: past a minute on the suites' own episodes; docs/hostile-round9.md)
+_MAX_PARTICLES = 256
 _AUTO_RESET = 4  # reset_after of pt-post's remedies when the priors do not state a clean channel (as dokf)
 RATES = ("priors", "estimate")
 LABELS = ("sample", "map")

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from deint_env.divisions import check_division
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 from deint_env.policies import Policy, canonical_spec, make_policy, policy_info
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
@@ -54,14 +54,21 @@ def load_preset(base: str, suite: str, division: str) -> dict[str, Any]:
     try:
         preset = json.loads(path.read_text())
         version, spec, params = preset["base_version"], preset["spec"], preset["params"]
-    except (ValueError, KeyError, TypeError) as e:
-        raise DeintError(f"preset {path} is unreadable ({type(e).__name__}: {e})") from None
+    except (ValueError, KeyError, TypeError, RecursionError) as e:  # RecursionError: JSON nested too deep
+        raise DeintError(f"preset {path} is unreadable ({type(e).__name__}: {shown(str(e))})") from None
+    named = {"policy": base, "suite": suite, "division": division}
+    for key, want in named.items():  # a preset copied under another name would play for the wrong board
+        if preset.get(key) != want:
+            raise DeintError(f"preset {path}: its {key} {shown(preset.get(key))} is not {want!r}, as its path says")
     current = policy_info(base).version
-    if version != current:
-        raise DeintError(f"preset {path} was tuned for {base} version {version}, not the current {current}: re-tune "
-                         f"with `{preset.get('command') or f'deint tune {base} --suite {suite}'}`")
-    if not isinstance(spec, str) or spec.partition(":")[0] != base or not isinstance(params, dict):
-        raise DeintError(f"preset {path}: its spec {spec!r} is not a {base} spec")
+    # exactly the version's type: 10.0 or True compared equal to a version 10 or 1
+    if type(version) is not type(current) or version != current:
+        raise DeintError(f"preset {path} was tuned for {base} version {version!r}, not the current {current!r}: "
+                         f"re-tune with `deint tune {base} --suite {suite} --division {division}`")
+    if not isinstance(spec, str) or spec.partition(":")[0] != base:
+        raise DeintError(f"preset {path}: its spec {shown(spec)} is not a {base} spec")
+    if not isinstance(params, dict):
+        raise DeintError(f"preset {path}: its params {shown(params)} are not a JSON object of {base}'s parameters")
     return preset
 
 

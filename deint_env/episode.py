@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -87,6 +88,8 @@ class Priors:
 
     @classmethod
     def from_info(cls, info: dict[str, Any]) -> Priors:
+        if not isinstance(info, Mapping):  # a list has no .get: an AttributeError
+            raise DeintError(f"priors: info={shown(info)} is invalid: a mapping of the env's info fields")
         n, blind = info.get("n_labels"), info.get("blind", False)
         if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
             raise DeintError(f"priors: n_labels={n!r} must be an integer >= 1")

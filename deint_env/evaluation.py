@@ -127,6 +127,8 @@ def evaluate(policy: Any, *, suite: str | None = None, scenarios: Sequence[str] 
     if isinstance(policy, type):  # its lag, reset and act are unbound functions: it would play as nonsense
         raise DeintError(f"policy={policy.__name__} is a class; pass a policy object ({policy.__name__}(...)) or a "
                          f"policy spec string")
+    if suite is not None and not isinstance(suite, str):  # `"/" in 5` below was a TypeError
+        raise DeintError(f"suite={shown(suite)} is invalid: a suite name (a string; see `deint suites`)")
     if isinstance(scenarios, str):
         raise DeintError(f"scenarios={scenarios!r} is invalid: a list of SUITE/SCENARIO names")
     if suite is not None and "/" not in suite:

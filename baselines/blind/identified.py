@@ -62,9 +62,6 @@ from deint_env.modulation import PRIModel
 from deint_env.params import Param, declare
 from deint_env.scenario import Modulation
 
-WINDOW = Param("window", int, MAX_WINDOW, "pulses per batch (the lag is window - 1)", low=2, high=MAX_WINDOW)
-PARAMS = declare(WINDOW)
-
 # a stagger of more levels than the generators draw (2-6) is pieces of another train, not one radar's cycle
 MAX_LEVELS = 8
 # the spurious rate a window's leftover pulses are taken for: more left over than this is sources cdif did not
@@ -85,6 +82,12 @@ UNSTATED_MISSING = 0.1
 PERIOD_STD, FALLBACK_PERIOD_STD = 0.01, 0.05
 # a renewal-ml train of fewer pulses is a stray: no PRI model to fit
 MIN_TRAIN = 8
+# about 26 ms of CPU a pulse (1000-pulse files: 26 s, up to 54 s): a longer record is refused rather than run for
+# many minutes (10^5 pulses had not ended after 221 s; docs/hostile-round9.md)
+MAX_PULSES = 2_000
+# a window shorter than the least train can hold none: every window would be not applicable
+WINDOW = Param("window", int, MAX_WINDOW, "pulses per batch (the lag is window - 1)", low=MIN_TRAIN, high=MAX_WINDOW)
+PARAMS = declare(WINDOW)
 # how far a fitted model's period may lie from its train's median interval (a stagger's levels, a sweep's depth)
 PERIOD_CHECK = 0.25
 REFINE_ROUNDS = 3
@@ -334,6 +337,10 @@ class IdentifiedRenewal(WindowedPolicy):
     def reset(self, priors: Priors, info: dict[str, Any]) -> None:
         if not priors.blind:
             raise NotApplicable("cdif-renewal identifies its own trains: blind scenarios only (no prior tracks)")
+        if (info.get("n_pulses") or 0) > MAX_PULSES:
+            raise DeintError(f"cdif-renewal labels at most {MAX_PULSES} pulses in one run (about 26 ms a pulse); "
+                             f"this record has {info['n_pulses']}: split it into files of at most {MAX_PULSES} "
+                             "pulses, or use cdif (up to 100000)")
         self.priors, self.n_labels = priors, priors.n_labels
         # one cdif over the episode, fed window by window, so that its labels carry across windows
         self._cdif = CDIFPolicy(window=self.window)

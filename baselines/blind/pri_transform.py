@@ -44,7 +44,8 @@ def _transform(t, centres, half, pri_min, pri_max, eps, jit, shift):  # pragma: 
     for j in range(1, n):
         for m in range(j - 1, -1, -1):
             tau = t[j] - t[m]
-            if tau < pri_min - hmax:
+            # coincident pulses (equal TOAs: steps below float64's at 1e15) have no PRI; their phase divided by 0
+            if tau < pri_min - hmax or tau <= 0.0:
                 continue
             if tau > pri_max + hmax:
                 break

@@ -223,7 +223,7 @@ def write(folder: Path, scope: Scope, records: list[EpisodeRecord] | None = None
         records = without_superseded(records, current)
         board, profiles = aggregate(records, scope, reps=reps, current=current)
         looks = history.update(history.read(folder), board["rows"])
-        add_looks_and_timings(board, looks, timing.read(folder))
+        add_looks_and_timings(board, looks, timing.read(folder, board["suite"]))
         board["examples"], pictures = episodes.examples(scope.entries())
         files = {RESULTS: results_text(records), history.HISTORY: history.text(looks), **pictures}
         files.update(render.render_all(board))

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from deint_env.errors import DeintError
+from deint_env.errors import DeintError, shown
 from deint_env.formats.files import write_all
 
 HISTORY = "history.json"
@@ -37,12 +37,21 @@ def read(folder: Path) -> list[Look]:
     path = folder / HISTORY
     if not path.exists():
         return []
+    rebuild = f"rebuild it with python -m deint_env.leaderboard.history {folder}"
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        looks = [Look(str(d["family"]), str(d["version"])) for d in data["looks"]]
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+        looks = [Look(d["family"], d["version"]) for d in data["looks"]]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError):
         raise DeintError(f"{path}: is not a test-look history (JSON with a list 'looks' of family and version); "
-                         f"rebuild it with python -m deint_env.leaderboard.history {folder}") from None
+                         f"{rebuild}") from None
+    if data.get("format") != "deint-test-looks":
+        raise DeintError(f"{path}: field format is {shown(data.get('format'))}, not 'deint-test-looks'; {rebuild}")
+    # `text` writes strings only: a number or object here (once read as its str) is a tampered file
+    for i, look in enumerate(looks):
+        for key, value in look._asdict().items():
+            if not isinstance(value, str) or not value:
+                raise DeintError(f"{path}: field looks[{i}].{key} is {shown(value)}, not a non-empty string; "
+                                 f"{rebuild}")
     return list(dict.fromkeys(looks))
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 import platform
 import statistics
@@ -28,7 +29,7 @@ from typing import Any, Iterable, NamedTuple
 
 import numpy as np
 
-from deint_env.errors import DeintError, NotApplicable
+from deint_env.errors import DeintError, NotApplicable, shown
 from deint_env.formats.files import write_all
 
 TIMINGS = "timings.json"
@@ -132,7 +133,8 @@ def run(folder: Path, suite: str, specs: Iterable[str], scenarios: tuple[str, ..
     return out
 
 
-def read(folder: Path) -> dict[str, Any] | None:
+def read(folder: Path, suite: str | None = None) -> dict[str, Any] | None:
+    """The timing run of the board in `folder` (None: none), its fields checked; `suite`: the board's."""
     path = folder / TIMINGS
     if not path.exists():
         return None
@@ -140,6 +142,41 @@ def read(folder: Path) -> dict[str, Any] | None:
         data = json.loads(path.read_text(encoding="utf-8"))
         if data.get("format") != "deint-timings" or not isinstance(data.get("policies"), dict):
             raise ValueError
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError, RecursionError):
         raise DeintError(f"{path}: is not a timings file; remove it or rerun deint leaderboard --time") from None
+    _check_fields(path, data)
+    if suite is not None and data.get("suite") != suite:  # another board's times would be shown as this one's
+        raise DeintError(f"{path}: field suite is {shown(data.get('suite'))}, not {suite!r} (its board's); "
+                         "remove it or rerun deint leaderboard --time")
     return data
+
+
+def _check_fields(path: Path, data: dict[str, Any]) -> None:
+    """The fields the board and its page read, as `time_all` writes them (a string speed, a NaN or a null
+    reference reached the page as a wrong number or a TypeError)."""
+    def need(field: str, value: Any, ok: bool, want: str) -> None:
+        if not ok:
+            raise DeintError(f"{path}: field {field} is {shown(value)}, not {want}; remove it or rerun deint "
+                             "leaderboard --time")
+
+    def speed(field: str, value: Any) -> None:
+        need(field, value, value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                             and math.isfinite(value) and value >= 0), "null or a number >= 0")
+
+    for key in ("date", "method"):
+        need(key, data.get(key), isinstance(data.get(key), str), "a string")
+    machine, reference = data.get("machine"), data.get("reference")
+    need("machine", machine, isinstance(machine, dict), "an object")
+    for key in ("processor", "python"):
+        need(f"machine.{key}", machine.get(key), isinstance(machine.get(key), str), "a string")
+    cpus = machine.get("cpus")
+    need("machine.cpus", cpus, cpus is None or (type(cpus) is int and cpus >= 1), "null or an integer >= 1")
+    need("reference", reference, isinstance(reference, dict), "an object")
+    need("reference.suite", reference.get("suite"), isinstance(reference.get("suite"), str), "a string")
+    speed("reference.us_per_pulse", reference.get("us_per_pulse"))
+    for spec, row in data["policies"].items():
+        need(f"policies[{spec!r}]", row, isinstance(row, dict), "an object")
+        for key in ("us_per_pulse", "vs_fdp"):
+            speed(f"policies[{spec!r}].{key}", row.get(key))
+        batch = row.get("batch", 1)
+        need(f"policies[{spec!r}].batch", batch, type(batch) is int and batch >= 1, "an integer >= 1")

@@ -21,7 +21,7 @@ class TrainConfig:
     lag: int = 0
     n_envs: int | None = None  # None: the YAML's
     timesteps: int | None = None  # None: the YAML's n_timesteps
-    time_budget: float | None = None  # seconds of training, checked every rollout
+    time_budget: float | None = None  # seconds of training, checked every env step
     seed: int = 0
     eval_every: int = 50_000
     eval_episodes: int = 32

@@ -165,12 +165,20 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
     obs = env.features.observation()
     bar = tqdm(total=run.timesteps, initial=min(done, run.timesteps), unit="step", disable=not config.progress,
                desc=f"{config.algo} ({expert.name})")
-    while done < run.timesteps and (config.time_budget is None
-                                    or time.perf_counter() - run.t0 < config.time_budget):
+
+    def out_of_time() -> bool:  # checked every env step and every batch, as SB3's callbacks are: a round can be long
+        return config.time_budget is not None and time.perf_counter() - run.t0 >= config.time_budget
+
+    def stop() -> bool:
+        return done >= run.timesteps or out_of_time()
+
+    while not stop():
         beta = 1.0 if config.algo == "bc" else params.beta_decay ** iteration
         policy.eval()
-        t_iter = time.perf_counter()
+        t_iter, done_before = time.perf_counter(), done
         for _ in range(params.rollout_steps):
+            if stop():
+                break
             ready = env.features.ready
             target = expert.actions(env, layout.max_tracks)
             consistent = consistency.target(env.features)
@@ -188,6 +196,8 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
             consistency.record(env.features, ready, act, target)
             obs, *_ = env.step(act)
             done += env.num_envs
+        if done == done_before or not buf["action"]:  # stopped before a new step, or no pulse ready yet
+            break
         while stored > params.buffer and len(buf["action"]) > 1:  # drop the oldest rollout steps
             stored -= len(buf["action"][0])
             for k in buf:
@@ -199,6 +209,8 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
         for _ in range(params.epochs):
             order = torch.as_tensor(rng.permutation(n))
             for b in range(0, n, params.batch_size):
+                if losses and out_of_time():
+                    break
                 idx = order[b:b + params.batch_size]
                 logits, value = _logits(policy, {k: data[k][idx] for k in keys})
                 loss = torch.nn.functional.cross_entropy(logits, data["action"][idx])
@@ -212,12 +224,11 @@ def dagger(config: TrainConfig, run, expert) -> TrainResult:
         iteration += 1
         model.num_timesteps = done
         run.iteration = iteration
-        bar.update(params.rollout_steps * env.num_envs)
+        bar.update(done - done_before)
         if run.tb is not None:
             for tag, value in (("train/loss", float(np.mean(losses))), ("train/beta", beta), ("train/samples", n),
                                ("train/iteration", iteration),
-                               ("time/steps_per_second", params.rollout_steps * env.num_envs
-                                / (time.perf_counter() - t_iter))):
+                               ("time/steps_per_second", (done - done_before) / (time.perf_counter() - t_iter))):
                 run.tb.add_scalar(tag, value, done)
         if done >= next_eval or done >= run.timesteps:
             next_eval = done + config.eval_every

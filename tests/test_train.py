@@ -181,6 +181,18 @@ def test_a_tiny_dagger_run_learns_something(tmp_path):
     assert result.evaluations[-1]["validation_accuracy"] > 0.5
 
 
+def test_dagger_stops_within_a_round_at_its_steps_and_its_time_budget(tmp_path):
+    """A DAgger round (rollout_steps x n_envs) can outlast the budget with a slow expert: both limits are
+    checked every env step, as SB3's callbacks check them."""
+    hp = tmp_path / "hp.yml"
+    hp.write_text("default:\n  rollout_steps: 100000\n  epochs: 1\n  policy_kwargs: {d_model: 8, heads: 2}\n")
+    result = train(tiny(tmp_path / "steps", algo="dagger", hyperparams_file=hp, timesteps=1, eval_every=10**6))
+    assert result.timesteps == 2  # one step of 2 envs, not the round's 200,000
+    result = train(tiny(tmp_path / "time", algo="dagger", hyperparams_file=hp, timesteps=10**9, eval_every=10**9,
+                        time_budget=1.0))
+    assert 0 < result.timesteps < 200_000
+
+
 def scalars(run_dir) -> dict[str, list[float]]:
     """Every scalar tag TensorBoard would show for the event files under `run_dir`."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

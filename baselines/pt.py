@@ -169,6 +169,17 @@ particles drew misses for it, runs of them reset tracks, and the reset tracks to
 paper-v0, one validation seed: 0.580 -> 0.637 (CM00's jittered scenes 0.509 -> 0.606, mk94-two-var3 0.112 -> 0.473);
 the dense files and core-v0's validation episodes pass the test and are labelled as by version 5.  CM00's clean
 scenes still lose: their start already holds wrong identities (docs/experiments.md, 'pt-post version 6').
+Version 7: unknown phases in the start beam.  The first pulse of a source of unknown phase was scored by the diffuse
+prior (MK94's Sigma_{1|0} = 10^6 I): -log(10^6 T), some 15 nats below a pulse that continues a track, so the beam
+ranked first the labellings that start tracks late, their pulses on started tracks at any period (CM00's clean
+scene of five trains, priors 11 % high: the true labelling 20 nats behind by the 5th pulse and out of the beam; the
+0.232 train ended on the track of prior period 0.403 +- 0.045).  In pt-post's start such a pulse now has the
+density of a phase uniform over one period, 1 / T (as `_reset` has it).  And two labellings that swap the first
+pulses of two such sources tie exactly and predict their next arrivals within the prior period's deviation, so the
+rule keeping only labellings that predict differently dropped one of them by the order of the rows: that order, not
+the periods their second pulses measure, chose which prior each train was held to (every train found, under
+swapped identities).  pt-post's rule compares such a source's last arrival too, to its state's deviation (R-sized
+once it took a pulse).  Priors stating every phase (core-v0, the dense files) label as before; dokf is unchanged.
 """
 
 from __future__ import annotations
@@ -202,7 +213,8 @@ _MARGIN = 10.0  # dokf's default `beam_margin`, nats
 _START_SPAN = 2.0  # the start's length, in longest prior periods from the first pulse
 _LOCATED = 0.5  # pt-post acquires by the start beam when every prior period deviation is below this fraction
 _SAME_AHEAD = 1.0  # a start labelling predicting a better kept one's next two arrivals to this many deviations: dropped
-_AHEAD_STEPS = np.array([[1.0], [2.0]])  # those arrivals, in steps of (2.8)
+_AHEAD_STEPS = np.array([[0.0], [1.0], [2.0]])  # the last arrival and those two, in steps of (2.8)
+_HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)  # the Gaussians' normaliser the scores leave out
 _PARTICLES = 32  # pt-post's teachers after a located start (module doc, 'Particles')
 # each costs one PT's work a pulse (about 0.08 ms on 8 sources): 256 label a 1000-pulse episode in about 22 s of CPU
 # (1024, the bound before, took 86 s: past a minute on the suites' own episodes; docs/hostile-round9.md)
@@ -337,6 +349,8 @@ class ProbabilisticTeacher:
         self._coasted = 0  # arrivals `_coast` skipped (not counting a dropout's), since `_start_beam` zeroed it
         self.taken = np.zeros(self.n, dtype=np.int64)  # pulses taken, per source
         self._guessed = ~np.isfinite(priors.phase)  # sources whose phase the priors leave unknown
+        # pt-post's start weighs their first pulses by a phase uniform over one period (`_start_beam`)
+        self._uniform_phase = self._guessed & (self.teacher == "posterior")
         self._young = bool(self._guessed.any())  # some of them may still hold a single, doubtful pulse
         self._settled = math.inf  # rates are learnt from pulses after this time (set at the first pulse)
         self._start_end = math.inf  # the start (two longest periods from the first pulse) ends then
@@ -493,7 +507,12 @@ class ProbabilisticTeacher:
         miss = np.full(source.size, math.log1p(-q))
         if source.size > self.n:
             miss += missed * math.log(q)
-        score = (self.log_pi if source.size == self.n else self.log_pi[source]) + miss - 0.5 * (np.log(s) + e * e / s)
+        fit = -0.5 * (np.log(s) + e * e / s)
+        if self._young and self._beam is not None:
+            # a first pulse of unknown phase in pt-post's start beam: density 1 / T (`_start_beam`)
+            fresh = self._uniform_phase[source] & (self.taken[source] == 0)
+            fit = np.where(fresh, _HALF_LOG_2PI - np.log(pred.period), fit)
+        score = (self.log_pi if source.size == self.n else self.log_pi[source]) + miss + fit
         return Candidates(source, steps, pred, e, s, miss, score)
 
     def act(self, obs: dict[str, Any]) -> int:
@@ -636,10 +655,11 @@ class ProbabilisticTeacher:
         often, so the decisions of the start are a beam search: every kept labelling is extended by each
         hypothesis of `candidates` (log(1 - lambda) + its score) and by "spurious" (log lambda + Theorem
         1's spread density around its best hypothesis), and the best `_START_BEAM[teacher]` kept,
-        skipping any whose next two arrivals (`_ahead`) a better kept one predicts within `_SAME_AHEAD`
-        deviations; each pulse is labelled at once by the best.  After the start (`dokf`, `beam_span`) at most
-        `_AFTER_BEAM` are kept, within `beam_margin` of the best; where the beam ends the tracker goes on from
-        the best alone.  One kept labelling reproduces the single-decision rule exactly."""
+        skipping any whose next two arrivals (`_ahead`; in pt-post the last one of a source of unknown phase
+        too) a better kept one predicts within `_SAME_AHEAD` deviations; each pulse is labelled at once by the
+        best.  After the start (`dokf`, `beam_span`) at most `_AFTER_BEAM` are kept, within `beam_margin` of the
+        best; where the beam ends the tracker goes on from the best alone.  One kept labelling reproduces the
+        single-decision rule exactly."""
         lam = self._spurious_prob(y)
         log_pulse = math.log1p(-lam)
         # after the start the labellings' skipped arrivals are priced as the candidates' misses are: free, a
@@ -688,9 +708,12 @@ class ProbabilisticTeacher:
         return label
 
     def _ahead(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every source's next two arrivals (2.8) and their variances, without the jitter's (`_start_beam`)."""
+        """Every source's next two arrivals (2.8) and their variances, without the jitter's, and in pt-post the
+        last arrival of a source of unknown phase (`_start_beam`; any other's is alike at any distance)."""
         b, k = self.blocks, _AHEAD_STEPS
-        return b.tau + k * b.period, k * k * b.p_tt + 2.0 * k * b.p_tx + b.p_xx + k * self.model.interval_var
+        var = k * k * b.p_tt + 2.0 * k * b.p_tx + b.p_xx + k * self.model.interval_var
+        var[0] = np.where(self._uniform_phase, var[0], np.inf)
+        return b.tau + k * b.period, var
 
     def estimates(self) -> dict[str, np.ndarray]:
         return {"period": self.blocks.period.copy(), "phase": phase_estimate(self.blocks, self.arrivals)}

@@ -100,6 +100,20 @@ def test_sweeps_are_found_whole_by_their_frames():
     assert found == set(range(K))
 
 
+def test_staggers_are_found_by_their_frames_not_by_multiples():
+    """Three random-level staggers among 20 % spurious pulses (seed 0): a stagger's frame multiples outrank frames,
+    and a multiple's train held other radars' pulses (version 4: two trains of 12 and 3 pulses after the first);
+    taken at the least frame it is a multiple of, each radar is found with over 90 % of its pulses."""
+    f = agile_file(("stagger",) * K, 0, spurious=0.2)
+    found = set()
+    for own, _ in frame_trains(f.toa, 0.0, K):
+        radar = int(np.bincount(f.source[own] + 1).argmax()) - 1
+        mine = np.count_nonzero(f.source[own] == radar)
+        assert mine >= 0.9 * np.count_nonzero(f.source == radar) and mine >= 0.95 * own.size, (radar, own.size)
+        found.add(radar)
+    assert found == set(range(K))
+
+
 def test_stray_pulses_and_jitter_do_not_make_a_modulation():
     """A sweep with 5 % of foreign pulses among its own is still found (its strays dropped); a jittered train
     (a random walk about its line) and a clean stagger are not taken for a sweep or wobulation."""

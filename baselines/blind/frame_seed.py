@@ -6,8 +6,10 @@ to the TOA noise alone: its difference histogram has a sharp peak at F however s
 each sharp peak, each pulse is linked to the pulse one frame later (or two or three, over missed pulses); the
 chains of links are the train's cycle positions, each as long as the record holds cycles, while chance links
 among other pulses make short chains.  The pulses of the long chains are the train, whole, with no PRI model
-assumed: a fit over them (`train_fit.fit_train`) finds the model.  A jittered train (a renewal process) has no
-sharp peak (its arrivals drift) and is not found here.
+assumed: a fit over them (`train_fit.fit_train`) finds the model.  The frame's multiples are peaks too, often
+stronger, and chains a multiple apart link other trains' pulses: a peak's train is taken at the least peak it is
+a multiple of that chains most of it (`_frame_train`).  A jittered train (a renewal process) has no sharp peak (its
+arrivals drift) and is not found here.
 """
 
 from __future__ import annotations
@@ -32,7 +34,14 @@ MIN_Z = 8.0  # a peak's excess over chance, in deviations of the chance count
 # the share of a peak's excess within +-tol of its centre against within +-5 tol: a jittered train's peaks are
 # wide (its arrivals drift), a frame's sharp
 SHARP = 0.6
-TOP_PEAKS = 12
+TOP_PEAKS = 12  # the strongest peaks tried as frames (each after the peaks it is a multiple of: `_frame_train`)
+DIVISOR_SHARE = 1 / 3  # `_frame_train`
+# a train of fewer pulses than this share of the largest one found is a piece: a wobulation's near-frame (a whole
+# number of pulses near a whole number of its cycles) chains a few cycle positions, as does a sum of some of a
+# stagger's levels.  Radars' pulse counts differ by their PRIs (3:1 at most in the independent generator); pieces
+# left out, the slot goes to another labelling's train (seed 3's wobulations with missing pulses: 0.64 -> 0.81,
+# 0.40 -> 0.95, 0.32 -> 0.39)
+PIECE_SHARE = 0.25
 # the bins the white noise is measured in where it is not stated, in median pulse spacings: far narrower than any
 # noise a frame peak is told by
 PROBE_TOL = 0.004
@@ -47,9 +56,10 @@ def _differences(toa: np.ndarray, max_lag: float) -> np.ndarray:
     return toa[second] - toa[first]
 
 
-def _peaks(d: np.ndarray, tol: float, max_lag: float, sharp: float = SHARP) -> list[float]:
-    """The strong peaks of the differences' histogram (bins `tol` wide), strongest first, of which `sharp` of the
-    excess lies within +-tol of the centre: each one's median difference."""
+def _peaks(d: np.ndarray, tol: float, max_lag: float, sharp: float = SHARP, top: int | None = None) -> list[float]:
+    """The `top` strong peaks (default all: a strong peak's frame may rank far down, `_frame_train`) of the
+    differences' histogram (bins `tol` wide), strongest first, of which `sharp` of the excess lies within +-tol of
+    the centre: each one's median difference."""
     counts = np.histogram(d, bins=np.arange(0.0, max_lag + tol, tol))[0].astype(np.float64)
     bg = median_filter(counts, size=BACKGROUND_BINS, mode="nearest")
     pair = counts[:-1] + counts[1:]  # +-tol about each inner edge
@@ -59,7 +69,7 @@ def _peaks(d: np.ndarray, tol: float, max_lag: float, sharp: float = SHARP) -> l
     local = np.r_[False, (pair[1:-1] >= pair[:-2]) & (pair[1:-1] > pair[2:]), False]
     good = np.flatnonzero(local & (z >= MIN_Z) & (excess >= sharp * np.maximum(wide, excess)))
     out = []
-    for i in good[np.argsort(-excess[good])][:TOP_PEAKS]:
+    for i in good[np.argsort(-excess[good])][:top]:
         lo = (i + 1) * tol
         out.append(float(np.median(d[(d >= lo - tol) & (d < lo + tol)])))
     return out
@@ -152,7 +162,7 @@ def _white_noise(d: np.ndarray, spacing: float, max_lag: float) -> float:
     tol = PROBE_TOL * spacing
     if not tol > 0:  # most pulses coincide (equal TOAs): no bins to measure in, no frame
         return 0.0
-    found = _peaks(d, tol, max_lag, sharp=0.0)
+    found = _peaks(d, tol, max_lag, sharp=0.0, top=1)
     if not found:
         return 0.0
     near = d[np.abs(d - found[0]) <= 10 * tol]
@@ -166,11 +176,27 @@ def _white_noise(d: np.ndarray, spacing: float, max_lag: float) -> float:
     return dev / math.sqrt(2)
 
 
+def _frame_train(t: np.ndarray, frame: float, peaks: list[float], tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The train chained at `frame` (`_chained`), or at the least peak it is a whole multiple of whose train holds
+    `DIVISOR_SHARE` of its pulses or more: a train's frame multiples are peaks too and may outrank its frame, and
+    chains a multiple apart, skipping up to `HOPS` multiples, link other trains' pulses (seed 4, staggered files: 5
+    frames of a 5-level stagger first, its train holding 148 pulses of another radar; a common multiple of two
+    2-level staggers' frames, 23 x 23.92 and 21 x 26.20, first, the frame 23.92 the 57th peak, the train at the
+    multiple both radars').  A divisor that is a sum of some of a train's levels chains a few of its positions
+    alone (seed 0: 72 pulses of a 5-level stagger's 300, a quarter of the multiple's train)."""
+    whole = _chained(t, frame, tol)
+    for p in sorted(p for p in peaks if p < frame and abs(frame - round(frame / p) * p) <= tol):
+        hit = _chained(t, p, tol)
+        if hit[0].size and hit[0].size >= DIVISOR_SHARE * whole[0].size:
+            return hit
+    return whole
+
+
 def frame_trains(toa: np.ndarray, white_noise: float, max_trains: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Up to `max_trains` trains found whole by their frames: (sorted pulse indices, each one's emission count from
     the frame).  The strongest peak's train first, then the same among the pulses left (a train's many frame
-    multiples would outrank other trains).  With no white noise stated (0) it is measured from the strongest frame
-    peak."""
+    multiples would outrank other trains); pieces (`PIECE_SHARE`) left out.  With no white noise stated (0) it is
+    measured from the strongest frame peak."""
     toa = np.asarray(toa, dtype=np.float64)
     if toa.size < 2 * MIN_CHAIN:
         return []
@@ -182,11 +208,12 @@ def frame_trains(toa: np.ndarray, white_noise: float, max_trains: int) -> list[t
     out: list[tuple[np.ndarray, np.ndarray]] = []
     while len(out) < max_trains and left.size >= 2 * MIN_CHAIN and tol > 0 and max_lag >= 10 * tol:
         t = toa[left]
-        found = next((hit for frame in _peaks(_differences(t, max_lag), tol, max_lag)
-                      if (hit := _chained(t, frame, tol))[0].size), None)
+        peaks = _peaks(_differences(t, max_lag), tol, max_lag)
+        found = next((hit for frame in peaks[:TOP_PEAKS] if (hit := _frame_train(t, frame, peaks, tol))[0].size),
+                     None)
         if found is None:
             break
         own, counts = found
         out.append((left[own], counts))
         left = np.delete(left, own)
-    return out
+    return [(own, counts) for own, counts in out if own.size >= PIECE_SHARE * max(o.size for o, _ in out)]
